@@ -1,0 +1,7 @@
+"""ROS-free Regor registration core: ``register(source_xyz, target_xyz, RegorConfig.preset(...))``."""
+from .config import ConfigError, RegorConfig
+from .features import PreparedCloud, RegistrationError
+from .pipeline import Correspondences, RegistrationResult, prepare_cloud, register
+
+__all__ = ["ConfigError", "Correspondences", "PreparedCloud", "RegistrationError",
+           "RegistrationResult", "RegorConfig", "prepare_cloud", "register"]

@@ -1,0 +1,218 @@
+"""Every tunable of the registration core, in one dataclass tree.
+
+This module is the single source of truth: the ROS node declares its parameters from it, the
+command line's ``--set`` overrides go through it, and the YAML presets in ``config/`` are generated
+from it. Each field carries a description and a valid range in its metadata.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Dict, Iterator, List, Optional, Tuple
+
+
+class ConfigError(ValueError):
+    """A configuration value is impossible; the message names the field."""
+
+
+def _param(default: Any, description: str, low: Optional[float] = None,
+           high: Optional[float] = None):
+    """A dataclass field with its description and inclusive valid range."""
+    meta = {"description": description, "range": (low, high)}
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass
+class FeatureConfig:
+    """Downsampling, normals and FPFH descriptors (open3d)."""
+
+    voxel_size: float = _param(0.05, "voxel edge for downsampling; every downsampled point is a keypoint [m]", 1e-4, 100.0)
+    normal_radius: float = _param(0.10, "search radius for normal estimation [m]", 1e-4, 1000.0)
+    normal_max_nn: int = _param(30, "max neighbours for normal estimation", 3, 1000)
+    fpfh_radius: float = _param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
+    fpfh_max_nn: int = _param(100, "max neighbours for the FPFH descriptor", 5, 1000)
+    min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
+
+
+@dataclass
+class InitialConfig:
+    """SC2-PCR++ initial stage: seeds, consensus sets, hypotheses, FS-TCD selection."""
+
+    inlier_threshold: float = _param(0.10, "residual below which a correspondence is an inlier of a hypothesis (tau) [m]", 1e-5, 100.0)
+    compatibility_threshold: float = _param(0.10, "length difference scale of pairwise compatibility (d_thre) [m]", 1e-5, 100.0)
+    nms_radius: float = _param(0.10, "radius of non-maximum suppression among seeds, in the source cloud [m]", 0.0, 100.0)
+    seed_ratio: float = _param(0.2, "fraction of correspondences used as seeds", 0.001, 1.0)
+    k1: int = _param(20, "size of the first-stage consensus set of each seed", 4, 1000)
+    k2: int = _param(10, "size of the second-stage consensus set of each seed", 3, 1000)
+    max_correspondences: int = _param(3000, "random subset size for the quadratic consensus steps (authors: 8000); 0 = all", 0, 100000)
+    power_iterations: int = _param(10, "power iterations for leading eigenvectors", 1, 100)
+    candidates: int = _param(100, "feature-nearest target candidates per source point checked by FS-TCD (K)", 1, 1000)
+    num_hypotheses: int = _param(50, "hypotheses with the most inliers that FS-TCD compares", 1, 1000)
+    fs_tcd_threshold: float = _param(0.05, "length difference below which two verified matches agree in FS-TCD [m]", 1e-5, 100.0)
+    refine_threshold: float = _param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
+    dedupe_hypotheses: bool = _param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
+    fs_tcd_ball_neighbors: int = _param(32, "target points checked per source point in FS-TCD's ball query", 1, 1000)
+    fs_tcd_rows: int = _param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all (deviation)", 0, 100000)
+    reproduce_fs_tcd_quirk: bool = _param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the previous hypothesis's matches)")
+
+
+@dataclass
+class RegenerationConfig:
+    """Progressive regeneration stages, each a (neighbours, seeds) pair."""
+
+    stage_neighbors: List[int] = _param([100, 20], "k nearest neighbours forming each local region, one entry per stage", 1, 1000)
+    stage_seeds: List[int] = _param([100, 500], "seed correspondences drawn per stage, one entry per stage", 1, 100000)
+    consistency_threshold: float = _param(0.10, "sigma of the centre-aware three-point consistency; pairs agree within sigma/2 [m]", 1e-5, 100.0)
+    gmm_k: int = _param(3, "neighbours of generalized mutual matching", 1, 50)
+    point_support_ratio: float = _param(0.3, "a pair is kept if consistent with this fraction of its region", 0.0, 1.0)
+    region_keep_ratio: float = _param(0.5, "a region is dropped if it keeps less than this fraction of its pairs", 0.0, 1.0)
+    global_threshold: float = _param(0.10, "length difference threshold of the global second-order filter [m]", 1e-5, 100.0)
+    global_cap: int = _param(1500, "random subset size for the global second-order filter; 0 = all (deviation)", 0, 100000)
+    presample: int = _param(0, "draw this many initial inliers with replacement before stage 1 (authors' 3DLoMatch: 100); 0 = off", 0, 100000)
+    reproduce_ctc_padding_bug: bool = _param(False, "count padded slots in the region keep test as the authors' code does")
+
+
+@dataclass
+class EstimationConfig:
+    """Final pose: Kabsch, then Cauchy-weighted point-level refinement over all keypoints."""
+
+    inlier_threshold: float = _param(0.10, "nearest-neighbour distance below which a keypoint is a final inlier (tau_e) [m]", 1e-5, 100.0)
+    max_iterations: int = _param(20, "iterations of the point-level refinement", 0, 1000)
+
+
+@dataclass
+class AcceptanceConfig:
+    """Quality gate: a pose that fails it is reported, never published as valid."""
+
+    min_inliers: int = _param(40, "fewest final inlier keypoints of an accepted pose", 0, 1000000)
+    min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
+
+
+PRESETS = ("indoor", "outdoor", "object")
+
+
+@dataclass
+class RegorConfig:
+    """The whole configuration; ``RegorConfig.preset(name)`` gives a named starting point."""
+
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    initial: InitialConfig = field(default_factory=InitialConfig)
+    regeneration: RegenerationConfig = field(default_factory=RegenerationConfig)
+    estimation: EstimationConfig = field(default_factory=EstimationConfig)
+    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    seed: int = _param(51, "seed of the random generator; the same seed gives the same pose", 0, 2**31 - 1)
+
+    @classmethod
+    def preset(cls, name: str) -> "RegorConfig":
+        """indoor: the paper's 3DMatch settings; outdoor: its KITTI settings; object: indoor scaled
+        to table-top objects (about 0.1-0.5 m across)."""
+        if name == "indoor":
+            return cls()
+        if name == "outdoor":
+            return cls(
+                features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5),
+                initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
+                                      nms_radius=0.3, k1=40, k2=30, fs_tcd_threshold=0.1,
+                                      refine_threshold=1.2),
+                estimation=EstimationConfig(inlier_threshold=1.2),
+            )
+        if name == "object":
+            s = 0.06  # object scale relative to indoor
+            return cls(
+                features=FeatureConfig(voxel_size=0.05 * s, normal_radius=0.10 * s, fpfh_radius=0.25 * s),
+                initial=InitialConfig(inlier_threshold=0.10 * s, compatibility_threshold=0.10 * s,
+                                      nms_radius=0.10 * s, fs_tcd_threshold=0.05 * s,
+                                      refine_threshold=0.10 * s),
+                regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
+                estimation=EstimationConfig(inlier_threshold=0.10 * s),
+            )
+        raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+
+    # --- flat view: "section.field" names, used by ROS parameters, the CLI and YAML files ---
+
+    def parameters(self) -> Iterator[Tuple[str, Any, dataclasses.Field]]:
+        """Yield (dotted name, current value, dataclass field) for every leaf."""
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if dataclasses.is_dataclass(value):
+                for sub in dataclasses.fields(value):
+                    yield f"{f.name}.{sub.name}", getattr(value, sub.name), sub
+            else:
+                yield f.name, value, f
+
+    def to_flat(self) -> Dict[str, Any]:
+        return {name: value for name, value, _ in self.parameters()}
+
+    def replace(self, overrides: Dict[str, Any]) -> "RegorConfig":
+        """A validated copy with ``{"section.field" or unique "field": value}`` applied."""
+        flat = self.to_flat()
+        for key, value in overrides.items():
+            name = resolve_name(key, flat)
+            flat[name] = _coerce(name, value, flat[name])
+        new = RegorConfig()
+        for name, value in flat.items():
+            section, _, leaf = name.rpartition(".")
+            setattr(getattr(new, section) if section else new, leaf, value)
+        new.validate()
+        return new
+
+    def validate(self) -> "RegorConfig":
+        """Raise ConfigError naming the first field that is out of range or inconsistent."""
+        for name, value, f in self.parameters():
+            low, high = f.metadata["range"]
+            values = value if isinstance(value, list) else [value]
+            for v in values:
+                if isinstance(v, bool):
+                    continue
+                if low is not None and v < low or high is not None and v > high:
+                    raise ConfigError(f"{name}={value!r} is outside its valid range [{low}, {high}]")
+        regen = self.regeneration
+        if len(regen.stage_neighbors) != len(regen.stage_seeds):
+            raise ConfigError("regeneration.stage_neighbors and regeneration.stage_seeds must have "
+                              f"one entry per stage (got {len(regen.stage_neighbors)} and {len(regen.stage_seeds)})")
+        if self.initial.k2 > self.initial.k1:
+            raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
+        if self.features.normal_radius < self.features.voxel_size:
+            raise ConfigError("features.normal_radius must be at least features.voxel_size")
+        if self.features.fpfh_radius < self.features.voxel_size:
+            raise ConfigError("features.fpfh_radius must be at least features.voxel_size")
+        return self
+
+
+def resolve_name(key: str, flat: Dict[str, Any]) -> str:
+    """Accept a dotted name or a leaf name that is unique across sections."""
+    if key in flat:
+        return key
+    matches = [name for name in flat if name.rpartition(".")[2] == key]
+    if len(matches) == 1:
+        return matches[0]
+    if matches:
+        raise ConfigError(f"parameter {key!r} is ambiguous: use one of {', '.join(matches)}")
+    raise ConfigError(f"unknown parameter {key!r}")
+
+
+def _coerce(name: str, value: Any, current: Any) -> Any:
+    """Convert a value (possibly a string from a command line) to the type of the current one."""
+    try:
+        if isinstance(current, bool):
+            if isinstance(value, str):
+                if value.lower() in ("1", "true", "yes", "on"):
+                    return True
+                if value.lower() in ("0", "false", "no", "off"):
+                    return False
+                raise ValueError(value)
+            return bool(value)
+        if isinstance(current, list):
+            if isinstance(value, str):
+                value = [v for v in value.replace("[", "").replace("]", "").split(",") if v.strip()]
+            return [int(v) for v in value]
+        if isinstance(current, int):
+            as_float = float(value)
+            if as_float != int(as_float):
+                raise ValueError(value)
+            return int(as_float)
+        return float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name}: cannot use {value!r} as a {type(current).__name__}") from None

@@ -1,0 +1,123 @@
+"""Pose estimation: weighted Kabsch, the two refinement loops, and the pose covariance."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def to_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Stack (..., 3, 3) rotations and (..., 3) translations into (..., 4, 4) transforms."""
+    T = np.zeros(rotation.shape[:-2] + (4, 4))
+    T[..., :3, :3] = rotation
+    T[..., :3, 3] = translation
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def weighted_kabsch(source: np.ndarray, target: np.ndarray,
+                    weights: Optional[np.ndarray] = None) -> np.ndarray:
+    """Least-squares rigid transform(s) mapping source onto target.
+
+    Works on (n, 3) or batched (b, n, 3) arrays; returns (4, 4) or (b, 4, 4). Reflections are
+    excluded with the determinant correction.
+    """
+    if weights is None:
+        weights = np.ones(source.shape[:-1])
+    w = weights[..., None]
+    wsum = w.sum(axis=-2, keepdims=True) + 1e-6
+    src_c = (w * source).sum(axis=-2, keepdims=True) / wsum
+    tgt_c = (w * target).sum(axis=-2, keepdims=True) / wsum
+    H = np.swapaxes(w * (source - src_c), -1, -2) @ (target - tgt_c)
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, -1, -2)
+    d = np.where(np.linalg.det(V @ np.swapaxes(U, -1, -2)) < 0, -1.0, 1.0)
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1.0
+    D[..., 1, 1] = 1.0
+    D[..., 2, 2] = d
+    R = V @ D @ np.swapaxes(U, -1, -2)
+    t = tgt_c[..., 0, :] - (R @ src_c[..., 0, :, None])[..., 0]
+    return to_matrix(R, t)
+
+
+def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
+    return 1.0 / (1.0 + (residual / threshold) ** 2)
+
+
+def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float,
+                iterations: int) -> np.ndarray:
+    """SC2-PCR's post-refinement on fixed correspondences: reweighted Kabsch on the inliers of
+    the current pose until the inlier count stops changing."""
+    previous = 0
+    for _ in range(iterations):
+        residual = np.linalg.norm(transform_points(T, source) - target, axis=1)
+        inliers = residual < threshold
+        count = int(inliers.sum())
+        if count == previous or count < 3:
+            break
+        previous = count
+        T = weighted_kabsch(source[inliers], target[inliers],
+                            cauchy_weights(residual[inliers], threshold))
+    return T
+
+
+@dataclass
+class PointRefinement:
+    transform: np.ndarray
+    source_index: np.ndarray   # final inlier pairs (source keypoint, nearest target keypoint)
+    target_index: np.ndarray
+    distances: np.ndarray      # their residuals under the pose they were found with
+
+
+def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, threshold: float,
+                 iterations: int) -> PointRefinement:
+    """The estimator's point-level refinement: every source keypoint against its nearest target
+    keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
+    previous = -1
+    distances, nearest = target_tree.query(transform_points(T, source), workers=-1)
+    inliers = distances < threshold
+    for _ in range(iterations):
+        count = int(inliers.sum())
+        if count == previous or count < 3:
+            break
+        previous = count
+        T = weighted_kabsch(source[inliers], target_tree.data[nearest[inliers]],
+                            cauchy_weights(distances[inliers], threshold))
+        distances, nearest = target_tree.query(transform_points(T, source), workers=-1)
+        inliers = distances < threshold
+    index = np.flatnonzero(inliers)
+    return PointRefinement(T, index, nearest[index], distances[index])
+
+
+def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """6x6 covariance of (x, y, z, roll, pitch, yaw) from point-to-point residuals of the inliers.
+
+    Gauss-Newton approximation sigma^2 (J^T J)^-1 for a small motion applied in the target frame
+    (translation first, as ROS orders it). Returns a huge diagonal when the geometry does not
+    constrain all six degrees of freedom.
+    """
+    moved = transform_points(T, source)
+    n = len(moved)
+    if n < 3:
+        return np.eye(6) * 1e6
+    residual = moved - target
+    J = np.zeros((n, 3, 6))
+    J[:, :, :3] = np.eye(3)
+    x, y, z = moved[:, 0], moved[:, 1], moved[:, 2]
+    # d(moved)/d(omega) = -[moved]_x
+    J[:, 0, 4], J[:, 0, 5] = z, -y
+    J[:, 1, 3], J[:, 1, 5] = -z, x
+    J[:, 2, 3], J[:, 2, 4] = y, -x
+    JtJ = np.einsum("nij,nik->jk", J, J)
+    dof = max(3 * n - 6, 1)
+    sigma2 = float((residual ** 2).sum()) / dof
+    if np.linalg.cond(JtJ) > 1e12:
+        return np.eye(6) * 1e6
+    return sigma2 * np.linalg.inv(JtJ)

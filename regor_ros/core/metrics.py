@@ -1,0 +1,64 @@
+"""Evaluation metrics of the paper (SPEC section 4): RE, TE, success, IP, IN, INR, FMR."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# (max rotation error in degrees, max translation error in metres) counted as a success
+SUCCESS_THRESHOLDS = {"indoor": (15.0, 0.30), "object": (15.0, 0.30), "outdoor": (5.0, 0.60)}
+# ground-truth residual below which a correspondence is correct [m]
+INLIER_THRESHOLDS = {"indoor": 0.10, "object": 0.10 * 0.06, "outdoor": 0.60}
+
+
+def rotation_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    cos = (np.trace(T_est[:3, :3].T @ T_gt[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def translation_error(T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    return float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3]))
+
+
+def is_success(T_est: np.ndarray, T_gt: np.ndarray, kind: str) -> bool:
+    max_re, max_te = SUCCESS_THRESHOLDS[kind]
+    return rotation_error_deg(T_est, T_gt) < max_re and translation_error(T_est, T_gt) < max_te
+
+
+def correct_mask(source: np.ndarray, target: np.ndarray, T_gt: np.ndarray, threshold: float) -> np.ndarray:
+    """Correspondences whose source point lands within ``threshold`` of its target under the truth."""
+    moved = source @ T_gt[:3, :3].T + T_gt[:3, 3]
+    return np.linalg.norm(moved - target, axis=1) < threshold
+
+
+@dataclass
+class PairStats:
+    """Per-pair figures from which the dataset means are taken."""
+
+    inliers_final: int      # IN_a: correct pairs among the final correspondences
+    final_count: int
+    inliers_initial: int    # IN_b: correct pairs among the initial feature matches
+    initial_count: int
+
+    @property
+    def inlier_precision(self) -> float:          # IP, 0 when there are no final pairs
+        return self.inliers_final / self.final_count if self.final_count else 0.0
+
+    @property
+    def inlier_number_ratio(self) -> float:       # INR, IN_a / IN_b (IN_a when IN_b = 0)
+        return self.inliers_final / self.inliers_initial if self.inliers_initial else float(self.inliers_final)
+
+    @property
+    def initial_inlier_ratio(self) -> float:
+        return self.inliers_initial / self.initial_count if self.initial_count else 0.0
+
+
+def pair_stats(final_src, final_tgt, init_src, init_tgt, T_gt, threshold: float) -> PairStats:
+    return PairStats(int(correct_mask(final_src, final_tgt, T_gt, threshold).sum()), len(final_src),
+                     int(correct_mask(init_src, init_tgt, T_gt, threshold).sum()), len(init_src))
+
+
+def feature_match_recall(stats, min_ratio: float = 0.05) -> float:
+    """FMR: fraction of pairs whose initial matches are more than ``min_ratio`` correct."""
+    stats = list(stats)
+    return float(np.mean([s.initial_inlier_ratio > min_ratio for s in stats])) if stats else 0.0

@@ -1,0 +1,133 @@
+"""register(): the whole Regor pipeline from two point clouds to a checked pose."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Union
+
+import numpy as np
+
+from .config import RegorConfig
+from .estimate import point_refine, pose_covariance, transform_points, weighted_kabsch
+from .features import PreparedCloud, RegistrationError, prepare
+from .initial import initial_stage
+from .matching import match_features
+from .regenerate import regenerate
+
+CloudInput = Union[np.ndarray, PreparedCloud]
+
+
+@dataclass
+class Correspondences:
+    source: np.ndarray   # (n, 3) source keypoints (source frame)
+    target: np.ndarray   # (n, 3) target keypoints (target frame)
+    inlier: np.ndarray   # (n,) bool, consistent with the estimated pose
+
+
+@dataclass
+class RegistrationResult:
+    transform: np.ndarray          # 4x4 T_target_source: maps source points into the target frame
+    accepted: bool                 # passed the quality gate (acceptance config)
+    reason: str                    # why it was not accepted; empty when accepted
+    num_inliers: int               # source keypoints with a target keypoint within tau_e
+    fitness: float                 # num_inliers / source keypoints
+    inlier_rmse: float             # RMS residual of those inliers [m]
+    covariance: np.ndarray         # 6x6 over (x, y, z, roll, pitch, yaw), target frame
+    initial: Correspondences       # all feature matches, inlier = within tau of the final pose
+    final: Correspondences         # the estimator's point-level inlier pairs
+    num_source_keypoints: int
+    num_target_keypoints: int
+    stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
+    timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
+
+
+def prepare_cloud(points, config: RegorConfig, name: str = "cloud") -> PreparedCloud:
+    """Prepare a cloud once (e.g. a static map) to pass to register() many times."""
+    return prepare(points, config.features, name)
+
+
+def _prepared(cloud: CloudInput, config: RegorConfig, name: str) -> PreparedCloud:
+    if isinstance(cloud, PreparedCloud):
+        if cloud.config != config.features:
+            raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
+                                    "again with this configuration")
+        return cloud
+    return prepare(cloud, config.features, name)
+
+
+def register(source: CloudInput, target: CloudInput,
+             config: Optional[RegorConfig] = None) -> RegistrationResult:
+    """Estimate T_target_source with no initial guess.
+
+    ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Raises
+    RegistrationError when an input cannot be registered; a registered pose that fails the
+    quality gate comes back with ``accepted=False`` and the reason.
+    """
+    config = (config or RegorConfig()).validate()
+    rng = np.random.default_rng(config.seed)
+    timings: Dict[str, float] = {}
+    clock = time.perf_counter()
+    start = clock
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[stage] = now - clock
+        clock = now
+
+    src_cloud = _prepared(source, config, "source")
+    tgt_cloud = _prepared(target, config, "target")
+    lap("features")
+
+    matches = match_features(src_cloud.features, tgt_cloud.features, config.initial.candidates)
+    init_src = src_cloud.points
+    init_tgt = tgt_cloud.points[matches.target_index]
+    lap("matching")
+
+    initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng)
+    seed_src, seed_tgt = init_src[initial.inliers], init_tgt[initial.inliers]
+    sizes = {"initial_matches": len(init_src), "initial_inliers": len(seed_src)}
+    lap("initial")
+
+    regen = config.regeneration
+    if regen.presample and len(seed_src):
+        pick = rng.integers(0, len(seed_src), regen.presample)
+        seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
+    if len(seed_src):
+        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
+            seed_src, seed_tgt = regenerate(seed_src, seed_tgt, src_cloud, tgt_cloud, k, s, regen, rng)
+            sizes[f"stage{stage}"] = len(seed_src)
+    lap("regeneration")
+
+    T = weighted_kabsch(seed_src, seed_tgt) if len(seed_src) >= 3 else initial.transform
+    est = config.estimation
+    refined = point_refine(T, src_cloud.points, tgt_cloud.tree, est.inlier_threshold, est.max_iterations)
+    T = refined.transform
+    final_src = src_cloud.points[refined.source_index]
+    final_tgt = tgt_cloud.points[refined.target_index]
+    covariance = pose_covariance(T, final_src, final_tgt)
+    lap("estimation")
+
+    num_inliers = len(final_src)
+    fitness = num_inliers / len(src_cloud)
+    rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
+    initial_inlier = (np.linalg.norm(transform_points(T, init_src) - init_tgt, axis=1)
+                      < config.initial.inlier_threshold)
+    accepted, reason = _quality_gate(num_inliers, fitness, config)
+    timings["total"] = time.perf_counter() - start
+    return RegistrationResult(
+        transform=T, accepted=accepted, reason=reason, num_inliers=num_inliers,
+        fitness=fitness, inlier_rmse=rmse, covariance=covariance,
+        initial=Correspondences(init_src, init_tgt, initial_inlier),
+        final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
+        num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
+        stage_sizes=sizes, timings=timings)
+
+
+def _quality_gate(num_inliers: int, fitness: float, config: RegorConfig):
+    gate = config.acceptance
+    if num_inliers < gate.min_inliers:
+        return False, f"only {num_inliers} inliers (acceptance.min_inliers={gate.min_inliers})"
+    if fitness < gate.min_fitness:
+        return False, f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
+    return True, ""
