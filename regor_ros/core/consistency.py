@@ -7,16 +7,16 @@ three-point consistency) is built from that length residual.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.distance import cdist
 
 
 def pairwise_distances(points: np.ndarray) -> np.ndarray:
-    """Euclidean distance matrix of (..., n, 3) points, computed on centred float64 coordinates
-    (the Gram trick loses centimetres on raw LiDAR coordinates in float32)."""
-    centred = points - points.mean(axis=-2, keepdims=True)
-    sq = (centred ** 2).sum(axis=-1)
-    gram = centred @ np.swapaxes(centred, -1, -2)
-    d2 = sq[..., :, None] + sq[..., None, :] - 2.0 * gram
-    return np.sqrt(np.maximum(d2, 0.0))
+    """Euclidean distance matrix of (n, 3) or batched (..., n, 3) points by direct differences
+    (the Gram trick loses centimetres on raw LiDAR coordinates)."""
+    if points.ndim == 2:
+        return cdist(points, points)
+    planes = np.moveaxis(points, -1, 0)
+    return np.sqrt(sum((x[..., :, None] - x[..., None, :]) ** 2 for x in planes))
 
 
 def length_residual(source: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -43,6 +43,19 @@ def second_order_scores(hard: np.ndarray) -> np.ndarray:
     return ((hard @ hard) * hard).sum(axis=-1)
 
 
+def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the k largest integer-valued scores along the last axis, best first, ties in
+    index order: what a stable descending argsort gives, without sorting whole rows."""
+    n = counts.shape[-1]
+    k = min(k, n)
+    if k <= 0:
+        return np.zeros(counts.shape[:-1] + (0,), dtype=np.int64)
+    key = np.rint(counts).astype(np.float64) * n + (n - 1 - np.arange(n))
+    top = np.argpartition(-key, k - 1, axis=-1)[..., :k]
+    order = np.argsort(-np.take_along_axis(key, top, axis=-1), axis=-1)
+    return np.take_along_axis(top, order, axis=-1)
+
+
 def top_second_order(hard: np.ndarray, keep: int) -> np.ndarray:
     """Indices of the ``keep`` rows with the highest second-order score, best first."""
-    return np.argsort(-second_order_scores(hard), kind="stable")[:keep]
+    return top_k_stable(second_order_scores(hard), keep)

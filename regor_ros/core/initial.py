@@ -10,12 +10,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from .config import InitialConfig
-from .consistency import leading_eigenvector, length_residual
+from .consistency import leading_eigenvector, length_residual, top_k_stable
 from .estimate import post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
-from .matching import FeatureMatches, feature_distance
+from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
@@ -58,11 +59,11 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig) -> np.
     k1, k2 = (cfg.k1, cfg.k2) if cfg.k1 <= n else (4, 4)
     k1, k2 = min(k1, n), min(k2, n)
     sc2 = (tight[seeds] @ tight) * hard[seeds]                          # (S, n)
-    first = np.argsort(-sc2, axis=1, kind="stable")[:, :k1]              # C1, best first
+    first = top_k_stable(sc2, k1)                                        # C1, best first
     hard_first = hard[first[:, :, None], first[:, None, :]]              # (S, k1, k1)
     # second stage: agreement with the best member c* of C1, through C1
     score = np.einsum("sm,smj->sj", hard_first[:, 0, :], hard_first)
-    second = np.take_along_axis(first, np.argsort(-score, axis=1, kind="stable")[:, :k2], axis=1)
+    second = np.take_along_axis(first, top_k_stable(score, k2), axis=1)
     local = soft[second[:, :, None], second[:, None, :]].copy()          # (S, k2, k2)
     diag = np.arange(local.shape[1])
     local[:, diag, diag] = 0.0
@@ -73,43 +74,44 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig) -> np.
 
 def inlier_counts(transforms: np.ndarray, src: np.ndarray, tgt: np.ndarray,
                   threshold: float) -> np.ndarray:
-    """Correspondences within ``threshold`` of each of a batch of poses."""
-    moved = np.einsum("sij,nj->sni", transforms[:, :3, :3], src) + transforms[:, None, :3, 3]
-    return (((moved - tgt) ** 2).sum(axis=2) < threshold ** 2).sum(axis=1)
+    """Correspondences within ``threshold`` of each of a batch of poses, as one matrix product:
+    |R a + t - b|^2 = |a|^2 + |b|^2 + |t|^2 + 2 a.(R^T t) - 2 t.b - 2 vec(R).vec(b a^T)
+    on centred coordinates (for precision)."""
+    a_mean, b_mean = src.mean(axis=0), tgt.mean(axis=0)
+    a, b = src - a_mean, tgt - b_mean
+    R = transforms[:, :3, :3]
+    t = np.einsum("sij,j->si", R, a_mean) + transforms[:, :3, 3] - b_mean
+    design = np.hstack([a, b, (b[:, :, None] * a[:, None, :]).reshape(-1, 9)])       # (n, 15)
+    coeffs = np.hstack([2 * np.einsum("sji,sj->si", R, t), -2 * t, -2 * R.reshape(-1, 9)])  # (S, 15)
+    sq = design @ coeffs.T + ((a ** 2).sum(1) + (b ** 2).sum(1))[:, None] + (t ** 2).sum(1)[None]
+    return (sq < threshold ** 2).sum(axis=0)
 
 
-def fs_tcd_fitness(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                   matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator):
+def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
+                   candidate_distance: np.ndarray, cfg: InitialConfig,
+                   rng: np.random.Generator):
     """FS-TCD score of a pose: re-match every source keypoint to its most feature-similar
     candidate lying near its warped position, then count the largest set of these verified
     matches that agree in length with one of them. Returns (fitness, verified src, verified tgt)."""
     tau = cfg.inlier_threshold
-    moved = transform_points(T, source.points)
-    k = min(cfg.fs_tcd_ball_neighbors, len(target))
-    dist, idx = target.tree.query(moved, k=k, distance_upper_bound=1.5 * tau, workers=-1)
-    dist, idx = dist.reshape(len(moved), k), idx.reshape(len(moved), k)
-    near = idx < len(target)
-    idx_safe = np.where(near, idx, 0)
-    sim = np.einsum("nc,nkc->nk", source.features, target.features[idx_safe])
-    candidate = near & (sim >= matches.candidate_floor[:, None])
-    verified = (candidate & (dist <= tau)).any(axis=1)
+    moved = transform_points(T, source_points).astype(np.float32)
+    e2 = sum((candidate_points[c] - moved[:, c, None]) ** 2 for c in range(3))  # (N, K)
+    verified = e2.min(axis=1) <= tau ** 2
     if not verified.any():
-        return 0, source.points[:0], target.points[:0]
-    cost = np.where(candidate, feature_distance(sim), np.inf)[verified]
-    best = np.argmin(cost, axis=1)
+        return 0, source_points[:0], source_points[:0]
     rows = np.flatnonzero(verified)
-    vp = source.points[rows]
-    vq = target.points[idx_safe[rows, best]]
+    cost = candidate_distance[rows] + 2.0 * (e2[rows] > (1.5 * tau) ** 2)
+    best = np.argmin(cost, axis=1)
+    vp = source_points[rows]
+    vq = candidate_points[:, rows, best].T.astype(np.float64)
     scored = np.arange(len(rows))
     if cfg.fs_tcd_rows and len(rows) > cfg.fs_tcd_rows:
         half = cfg.fs_tcd_rows // 2
-        by_residual = np.argsort(dist[rows, best], kind="stable")
+        by_residual = np.argsort(e2[rows, best], kind="stable")
         rest = rng.choice(by_residual[half:], cfg.fs_tcd_rows - half, replace=False)
         scored = np.concatenate([by_residual[:half], rest])
-    dp = np.linalg.norm(vp[scored, None, :] - vp[None, :, :], axis=2)
-    dq = np.linalg.norm(vq[scored, None, :] - vq[None, :, :], axis=2)
-    fitness = int((np.abs(dp - dq) < cfg.fs_tcd_threshold).sum(axis=1).max())
-    return fitness, vp, vq
+    agree = np.abs(cdist(vp[scored], vp) - cdist(vq[scored], vq)) < cfg.fs_tcd_threshold
+    return int(agree.sum(axis=1).max()), vp, vq
 
 
 def _is_duplicate(T: np.ndarray, kept: list, translation_tol: float) -> bool:
@@ -134,8 +136,14 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg)
     counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
     T_ic = hypotheses[int(np.argmax(counts))]
-    ranked = np.argsort(-counts, kind="stable")[:cfg.num_hypotheses]
+    ranked = top_k_stable(counts, cfg.num_hypotheses)
 
+    # FS-TCD works on the candidates' x, y, z planes, relative to the target centroid (float32)
+    origin = target.points.mean(axis=0)
+    candidate_points = np.ascontiguousarray(
+        np.moveaxis(target.points[matches.candidates] - origin, 2, 0), dtype=np.float32)
+    shift = np.eye(4)
+    shift[:3, 3] = -origin
     best_fitness, T_fs = -1, T_ic
     kept: list = []
     refine_src, refine_tgt = src, tgt
@@ -145,7 +153,9 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
                 T, kept, DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold):
             continue
         kept.append(T)
-        fitness, verified_src, verified_tgt = fs_tcd_fitness(T, source, target, matches, cfg, rng)
+        fitness, verified_src, verified_tgt = fs_tcd_fitness(
+            shift @ T, source.points, candidate_points, matches.candidate_distance, cfg, rng)
+        verified_tgt = verified_tgt + origin
         if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:
             refine_src, refine_tgt = verified_src, verified_tgt
         if fitness > best_fitness:
