@@ -54,6 +54,7 @@ class InitialConfig:
     refine_threshold: float = _param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
     dedupe_hypotheses: bool = _param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
     fs_tcd_ball_neighbors: int = _param(32, "target points checked per source point in FS-TCD's ball query", 1, 1000)
+    fs_tcd_points: int = _param(5000, "random subset of source keypoints verified by FS-TCD (deviation, for large clouds); 0 = all", 0, 1000000)
     fs_tcd_rows: int = _param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all (deviation)", 0, 100000)
     reproduce_fs_tcd_quirk: bool = _param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the previous hypothesis's matches)")
 

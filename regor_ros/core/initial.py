@@ -154,7 +154,8 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
             continue
         kept.append(T)
         fitness, verified_src, verified_tgt = fs_tcd_fitness(
-            shift @ T, source.points, candidate_points, matches.candidate_distance, cfg, rng)
+            shift @ T, source.points[matches.candidate_rows], candidate_points,
+            matches.candidate_distance, cfg, rng)
         verified_tgt = verified_tgt + origin
         if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:
             refine_src, refine_tgt = verified_src, verified_tgt

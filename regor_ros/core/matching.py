@@ -16,9 +16,10 @@ ROW_CHUNK = 2048  # rows of the similarity matrix held at once (memory bound for
 class FeatureMatches:
     """One-way nearest neighbour of every source keypoint, and its K most similar targets."""
 
-    target_index: np.ndarray      # (N,) nearest target keypoint in feature space
-    candidates: np.ndarray        # (N, K) the K most similar target keypoints (FS-TCD's set)
-    candidate_distance: np.ndarray  # (N, K) their feature distances
+    target_index: np.ndarray        # (N,) nearest target keypoint in feature space
+    candidate_rows: np.ndarray      # (R,) source keypoints that have candidate sets
+    candidates: np.ndarray          # (R, K) their K most similar target keypoints (FS-TCD's set)
+    candidate_distance: np.ndarray  # (R, K) and feature distances
 
 
 def feature_distance(similarity: np.ndarray) -> np.ndarray:
@@ -26,10 +27,10 @@ def feature_distance(similarity: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(2.0 - 2.0 * similarity + 1e-6, 0.0))
 
 
-def match_features(source_features: np.ndarray, target_features: np.ndarray,
-                   candidates: int) -> FeatureMatches:
+def match_features(source_features: np.ndarray, target_features: np.ndarray, candidates: int,
+                   candidate_rows: np.ndarray) -> FeatureMatches:
     """Nearest target feature per source feature (no mutual check, as the authors run it) and the
-    ``candidates`` most similar targets of each source feature.
+    ``candidates`` most similar targets of the source features in ``candidate_rows`` (sorted).
 
     The candidates are selected by a value threshold (np.partition) rather than argpartition,
     which is about twice as fast; ties at the threshold keep the lowest target indices.
@@ -38,19 +39,23 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray,
     k = min(candidates, m)
     kth = m - k
     nearest = np.empty(n, dtype=np.int64)
-    cand = np.empty((n, k), dtype=np.int64)
-    cand_sim = np.empty((n, k), dtype=np.float32)
+    cand = np.empty((len(candidate_rows), k), dtype=np.int64)
+    cand_sim = np.empty((len(candidate_rows), k), dtype=np.float32)
     for start in range(0, n, ROW_CHUNK):
         sim = source_features[start:start + ROW_CHUNK] @ target_features.T
+        nearest[start:start + len(sim)] = np.argmax(sim, axis=1)
+        lo, hi = np.searchsorted(candidate_rows, [start, start + len(sim)])
+        if lo == hi:
+            continue
+        sim = sim[candidate_rows[lo:hi] - start]
         rows = len(sim)
-        nearest[start:start + rows] = np.argmax(sim, axis=1)
         floor = np.partition(sim, kth, axis=1)[:, kth]
         r, c = np.nonzero(sim >= floor[:, None])
         rank = np.arange(len(r)) - np.searchsorted(r, r)
         keep = rank < k
-        cand[start:start + rows] = c[keep].reshape(rows, k)
-        cand_sim[start:start + rows] = sim[r[keep], c[keep]].reshape(rows, k)
-    return FeatureMatches(nearest, cand, feature_distance(cand_sim))
+        cand[lo:hi] = c[keep].reshape(rows, k)
+        cand_sim[lo:hi] = sim[r[keep], c[keep]].reshape(rows, k)
+    return FeatureMatches(nearest, candidate_rows, cand, feature_distance(cand_sim))
 
 
 def _top_mask(similarity: np.ndarray, k: int, axis: int) -> np.ndarray:
@@ -75,7 +80,7 @@ def mutual_matches(similarity: np.ndarray) -> np.ndarray:
 def generalized_mutual_matches(similarity: np.ndarray, k: int = 3) -> np.ndarray:
     """Generalized mutual matching (GMM): keep (j, l) if l is j's nearest and j is among l's k
     nearest, or j is l's nearest and l among j's k nearest. Mask over (..., rows, cols); it
-    contains the mutual matches and adds at most one more pair per row and per column."""
+    contains the mutual matches and holds at most rows + cols pairs."""
     row1, rowk = _top_mask(similarity, 1, -1), _top_mask(similarity, k, -1)
     col1, colk = _top_mask(similarity, 1, -2), _top_mask(similarity, k, -2)
     return (row1 & colk) | (rowk & col1)

@@ -1,0 +1,35 @@
+"""Start register_node with a preset parameter file and the two input topics remapped.
+
+ros2 launch regor_ros register.launch.py preset:=outdoor source:=/velodyne_points target:=/map
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration, PythonExpression
+from launch_ros.actions import Node
+
+
+def generate_launch_description():
+    config_dir = os.path.join(get_package_share_directory("regor_ros"), "config")
+    preset = LaunchConfiguration("preset")
+    params_file = PythonExpression(["'", config_dir, "/' + '", preset, "' + '.yaml'"])
+    return LaunchDescription([
+        DeclareLaunchArgument("preset", default_value="indoor",
+                              description="indoor, outdoor or object (config/<preset>.yaml)"),
+        DeclareLaunchArgument("source", default_value="source_cloud",
+                              description="PointCloud2 topic of the scan to localise"),
+        DeclareLaunchArgument("target", default_value="target_cloud",
+                              description="PointCloud2 topic of the scan or map to localise in"),
+        DeclareLaunchArgument("mode", default_value="pairs", description="pairs or map"),
+        Node(
+            package="regor_ros",
+            executable="register_node",
+            name="register_node",
+            output="screen",
+            parameters=[params_file, {"mode": LaunchConfiguration("mode")}],
+            remappings=[("source_cloud", LaunchConfiguration("source")),
+                        ("target_cloud", LaunchConfiguration("target"))],
+        ),
+    ])

@@ -1,0 +1,1 @@
+"""rclpy glue around the core: message conversion, parameters and the register node."""

@@ -1,0 +1,85 @@
+"""Builders of the node's output messages from a RegistrationResult."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import ColorRGBA, Header, String
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..core import RegistrationResult
+from ..core.estimate import transform_points
+
+INLIER_COLOUR = ColorRGBA(r=0.1, g=0.9, b=0.2, a=1.0)
+OUTLIER_COLOUR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.6)
+
+
+def pose_from_matrix(T: np.ndarray) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
+        float(x), float(y), float(z), float(w))
+    return pose
+
+
+def pose_stamped(result: RegistrationResult, header: Header) -> PoseStamped:
+    return PoseStamped(header=header, pose=pose_from_matrix(result.transform))
+
+
+def pose_with_covariance(result: RegistrationResult, header: Header) -> PoseWithCovarianceStamped:
+    msg = PoseWithCovarianceStamped(header=header)
+    msg.pose.pose = pose_from_matrix(result.transform)
+    msg.pose.covariance = [float(v) for v in result.covariance.reshape(-1)]
+    return msg
+
+
+def _line_marker(header: Header, ident: int, name: str, colour: ColorRGBA,
+                 start: np.ndarray, end: np.ndarray, width: float) -> Marker:
+    marker = Marker(header=header, ns=name, id=ident, type=Marker.LINE_LIST, action=Marker.ADD)
+    marker.pose.orientation.w = 1.0
+    marker.scale.x = width
+    marker.color = colour
+    ends = np.empty((2 * len(start), 3))
+    ends[0::2], ends[1::2] = start, end
+    marker.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in ends]
+    return marker
+
+
+def correspondence_markers(result: RegistrationResult, header: Header, max_lines: int,
+                           line_width: float) -> MarkerArray:
+    """Initial feature matches as line lists in the target frame, from each source keypoint placed
+    by the estimated pose to its matched target keypoint: inliers green (short by construction),
+    outliers red. At most ``max_lines`` lines, inliers first; the previous set is deleted."""
+    clear = Marker(header=header, action=Marker.DELETEALL)
+    inlier = result.initial.inlier
+    start = transform_points(result.transform, result.initial.source)
+    end = result.initial.target
+    n_in = min(int(inlier.sum()), max_lines)
+    n_out = min(int((~inlier).sum()), max_lines - n_in)
+    markers = [clear]
+    for ident, (name, colour, mask, count) in enumerate(
+            [("inliers", INLIER_COLOUR, inlier, n_in), ("outliers", OUTLIER_COLOUR, ~inlier, n_out)]):
+        if count:
+            index = np.flatnonzero(mask)[:count]
+            markers.append(_line_marker(header, ident, name, colour, start[index], end[index],
+                                        line_width))
+    return MarkerArray(markers=markers)
+
+
+def status_message(result: RegistrationResult, extra: dict) -> String:
+    """Quality figures, stage sizes and timings as JSON, for logs and dashboards."""
+    report = {
+        "accepted": result.accepted, "reason": result.reason,
+        "num_inliers": result.num_inliers, "fitness": round(result.fitness, 4),
+        "inlier_rmse": round(result.inlier_rmse, 5),
+        "feature_inliers": int(result.initial.inlier.sum()),
+        "source_keypoints": result.num_source_keypoints,
+        "target_keypoints": result.num_target_keypoints,
+        "stage_sizes": result.stage_sizes,
+        "timings": {k: round(v, 4) for k, v in result.timings.items()},
+    }
+    report.update(extra)
+    return String(data=json.dumps(report))

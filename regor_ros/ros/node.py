@@ -1,0 +1,225 @@
+"""register_node: Regor registration of two PointCloud2 topics, published as a pose.
+
+Callbacks only store the newest messages; one worker thread registers, so a slow registration
+drops stale inputs (counted) instead of queueing them, and the executor keeps answering
+parameter changes.
+"""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header, String
+from visualization_msgs.msg import MarkerArray
+
+from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
+from ..core.estimate import transform_points
+from .messages import correspondence_markers, pose_stamped, pose_with_covariance, status_message
+from .parameters import apply_changes, declare_parameters
+from .pointcloud import cloud_to_xyz, xyz_to_cloud
+
+WARN_THROTTLE_S = 5.0
+
+
+def qos_profile(kind: str) -> QoSProfile:
+    if kind == "sensor_data":
+        return qos_profile_sensor_data
+    durability = (DurabilityPolicy.TRANSIENT_LOCAL if kind == "transient_local"
+                  else DurabilityPolicy.VOLATILE)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=durability)
+
+
+@dataclass
+class Cloud:
+    header: Header
+    points: np.ndarray
+    serial: int  # increases with every message received on its topic
+
+
+def _stamp_seconds(header: Header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+class RegisterNode(Node):
+    def __init__(self):
+        super().__init__("register_node")
+        self.config, self.settings = declare_parameters(self)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._lock = threading.Condition()
+        self._source: Optional[Cloud] = None
+        self._target: Optional[Cloud] = None
+        self._serials = {"source": 0, "target": 0}
+        self._done = {"source": 0, "target": 0}   # serials last registered
+        self._prepared_target: Optional[PreparedCloud] = None
+        self._prepared_serial = -1
+        self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0}
+        self._stopping = False
+
+        self.create_subscription(PointCloud2, "source_cloud", self._on_source,
+                                 qos_profile(self.settings.source_qos))
+        self.create_subscription(PointCloud2, "target_cloud", self._on_target,
+                                 qos_profile(self.settings.target_qos))
+        self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
+        self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
+        self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
+        self.status_pub = self.create_publisher(String, "status", 10)
+        self.aligned_pub = self.create_publisher(PointCloud2, "aligned_cloud", 1)
+        self._worker = threading.Thread(target=self._work, name="regor_worker", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"ready: mode={self.settings.mode}, voxel={self.config.features.voxel_size} m; "
+            f"listening on {self.resolve_topic_name('source_cloud')} and "
+            f"{self.resolve_topic_name('target_cloud')}")
+
+    # --- parameters ---
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params}
+        try:
+            with self._lock:
+                self.config, self.settings = apply_changes(self.config, self.settings, changes)
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    # --- inputs: convert, keep only the newest ---
+
+    def _on_source(self, msg: PointCloud2) -> None:
+        self._store("source", msg)
+
+    def _on_target(self, msg: PointCloud2) -> None:
+        self._store("target", msg)
+
+    def _store(self, which: str, msg: PointCloud2) -> None:
+        try:
+            points = cloud_to_xyz(msg)
+        except RegistrationError as exc:
+            self._bad_input(f"{which}_cloud skipped: {exc}")
+            return
+        with self._lock:
+            self._serials[which] += 1
+            previous = self._source if which == "source" else self._target
+            if previous is not None and previous.serial > self._done[which] and \
+                    (which == "source" or self.settings.mode == "pairs"):
+                self.stats["dropped_stale"] += 1
+            cloud = Cloud(msg.header, points, self._serials[which])
+            if which == "source":
+                self._source = cloud
+            else:
+                self._target = cloud
+            self._lock.notify()
+
+    def _bad_input(self, text: str) -> None:
+        self.stats["bad_inputs"] += 1
+        self.get_logger().warning(text, throttle_duration_sec=WARN_THROTTLE_S)
+
+    # --- the worker ---
+
+    def _ready(self):
+        """The (source, target) to register now, or None."""
+        src, tgt = self._source, self._target
+        if src is None or tgt is None or src.serial == self._done["source"]:
+            return None
+        if self.settings.mode == "pairs":
+            if tgt.serial == self._done["target"]:
+                return None
+            tolerance = self.settings.max_stamp_difference
+            if tolerance and abs(_stamp_seconds(src.header) - _stamp_seconds(tgt.header)) > tolerance:
+                return None
+        return src, tgt
+
+    def _work(self) -> None:
+        while True:
+            with self._lock:
+                job = self._ready()
+                while job is None and not self._stopping:
+                    self._lock.wait(0.5)
+                    job = self._ready()
+                if self._stopping:
+                    return
+                src, tgt = job
+                self._done["source"], self._done["target"] = src.serial, tgt.serial
+                config, settings = self.config, self.settings
+            self._register(src, tgt, config, settings)
+
+    def _target_input(self, tgt: Cloud, config, settings):
+        """The target as registered: in map mode prepared once and cached per message."""
+        if settings.mode != "map":
+            return tgt.points
+        cached = self._prepared_target
+        if cached is None or self._prepared_serial != tgt.serial or cached.config != config.features:
+            self._prepared_target = prepare_cloud(tgt.points, config, "target")
+            self._prepared_serial = tgt.serial
+            self.get_logger().info(f"map prepared: {len(self._prepared_target)} keypoints")
+        return self._prepared_target
+
+    def _register(self, src: Cloud, tgt: Cloud, config, settings) -> None:
+        try:
+            result = register(src.points, self._target_input(tgt, config, settings), config)
+        except RegistrationError as exc:
+            self._bad_input(f"registration skipped: {exc}")
+            return
+        except Exception as exc:  # keep the node alive whatever the input did
+            self.get_logger().error(f"registration failed: {type(exc).__name__}: {exc}")
+            return
+        self.stats["registrations"] += 1
+        self.stats["accepted_poses"] += int(result.accepted)
+        header = Header(stamp=src.header.stamp, frame_id=tgt.header.frame_id)
+        extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
+                 "mode": settings.mode, **self.stats}
+        self.status_pub.publish(status_message(result, extra))
+        self.marker_pub.publish(correspondence_markers(result, header, settings.max_markers,
+                                                       settings.marker_line_width))
+        figures = (f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
+                   f"{result.timings['total']:.2f} s")
+        if not result.accepted:
+            self.get_logger().warning(f"pose rejected: {result.reason} ({figures})")
+            if not settings.publish_rejected:
+                return
+        else:
+            self.get_logger().info(f"pose accepted: {figures}")
+        self.pose_pub.publish(pose_stamped(result, header))
+        self.pose_cov_pub.publish(pose_with_covariance(result, header))
+        if settings.publish_aligned_cloud:
+            self.aligned_pub.publish(xyz_to_cloud(transform_points(result.transform, src.points), header))
+
+    def stop(self) -> None:
+        with self._lock:
+            self._stopping = True
+            self._lock.notify()
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    try:
+        node = RegisterNode()
+    except (ConfigError, ParameterException) as exc:
+        print(f"register_node: invalid parameter: {exc}", flush=True)
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

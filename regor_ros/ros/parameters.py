@@ -1,0 +1,105 @@
+"""ROS parameters of the node, declared from the core's RegorConfig and the node's own settings.
+
+Every leaf of RegorConfig becomes a parameter named ``section.field`` (``features.voxel_size``)
+with its description and range; ``preset`` picks the defaults they start from.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Dict, Tuple
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+
+from ..core.config import PRESETS, ConfigError, RegorConfig, _param
+
+QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
+MODE_CHOICES = ("pairs", "map")
+
+
+@dataclass
+class NodeSettings:
+    """What the node does around the core: inputs, modes and outputs."""
+
+    mode: str = _param("pairs", "pairs: register each new source/target pair; map: the latest target "
+                       "is a map prepared once, every new source is registered against it")
+    max_stamp_difference: float = _param(0.0, "pairs mode: register only clouds whose stamps differ "
+                                         "by at most this [s]; 0 = any", 0.0, 1e6)
+    source_qos: str = _param("sensor_data", "QoS of source_cloud: sensor_data (best effort), "
+                             "reliable, or transient_local (latched)")
+    target_qos: str = _param("transient_local", "QoS of target_cloud: sensor_data, reliable, or "
+                             "transient_local (a map published once)")
+    max_markers: int = _param(500, "most correspondence lines published on correspondences", 0, 100000)
+    marker_line_width: float = _param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
+    publish_aligned_cloud: bool = _param(False, "publish the source cloud moved into the target frame "
+                                         "on aligned_cloud")
+    publish_rejected: bool = _param(False, "also publish poses that fail the quality gate (status "
+                                    "says so); off: a rejected pose is only reported")
+
+
+CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
+           "preset": PRESETS}
+READ_ONLY = {"preset", "source_qos", "target_qos"}
+
+
+def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescriptor:
+    desc = ParameterDescriptor(description=field.metadata["description"],
+                               read_only=name in READ_ONLY)
+    if name in CHOICES:
+        desc.additional_constraints = "one of: " + ", ".join(CHOICES[name])
+    low, high = field.metadata["range"]
+    if low is not None and not isinstance(value, (bool, list)):
+        if isinstance(value, int):
+            desc.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        else:
+            desc.floating_point_range = [FloatingPointRange(from_value=float(low),
+                                                            to_value=float(high), step=0.0)]
+    return desc
+
+
+PRESET_FIELD = _param("indoor", "preset the core parameters start from: indoor, outdoor or object "
+                      "(read only; set at start, e.g. in the parameter file)")
+
+
+def declare_parameters(node) -> Tuple[RegorConfig, NodeSettings]:
+    """Declare every parameter and return the configuration they hold (overrides applied)."""
+    preset = node.declare_parameter("preset", "indoor", _descriptor("preset", PRESET_FIELD, "")).value
+    if preset not in PRESETS:
+        raise ConfigError(f"preset={preset!r}: choose one of {', '.join(PRESETS)}")
+    values = {}
+    for f in dataclasses.fields(NodeSettings):
+        default = f.default
+        values[f.name] = node.declare_parameter(f.name, default, _descriptor(f.name, f, default)).value
+    settings = make_settings(values)
+    core = {}
+    for name, default, f in RegorConfig.preset(preset).parameters():
+        core[name] = node.declare_parameter(name, default, _descriptor(name, f, default)).value
+    config = RegorConfig.preset(preset).replace(core)
+    return config, settings
+
+
+def make_settings(values: Dict) -> NodeSettings:
+    """NodeSettings from a dict of values, checking choices and ranges."""
+    for name, choices in CHOICES.items():
+        if name in values and values[name] not in choices:
+            raise ConfigError(f"{name}={values[name]!r}: choose one of {', '.join(choices)}")
+    settings = NodeSettings(**values)
+    for f in dataclasses.fields(NodeSettings):
+        low, high = f.metadata["range"]
+        value = getattr(settings, f.name)
+        if low is not None and not low <= value <= high:
+            raise ConfigError(f"{f.name}={value!r} is outside its valid range [{low}, {high}]")
+    return settings
+
+
+def apply_changes(config: RegorConfig, settings: NodeSettings,
+                  changes: Dict) -> Tuple[RegorConfig, NodeSettings]:
+    """The configuration after a batch of parameter changes; raises ConfigError with the reason."""
+    node_names = {f.name for f in dataclasses.fields(NodeSettings)}
+    node_changes = {k: v for k, v in changes.items() if k in node_names}
+    core_changes = {k: v for k, v in changes.items() if k not in node_names}
+    unknown = [k for k in core_changes if k not in config.to_flat()]
+    if unknown:
+        raise ConfigError(f"unknown parameter {unknown[0]!r}")
+    new_settings = make_settings({**dataclasses.asdict(settings), **node_changes})
+    return config.replace(core_changes), new_settings

@@ -1,0 +1,1 @@
+"""Command-line tools: file registration, benchmark, preset files, demo publisher."""

@@ -1,0 +1,40 @@
+"""Shared fixtures: the real scan pairs in ../shared/data (override with REGOR_DATA)."""
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("REGOR_DATA", REPO.parent / "shared" / "data"))
+PAIRS = DATA / "pairs"
+
+
+def load_pair(name):
+    """(source, target, T_target_source, kind) of a shared pair."""
+    kinds = {p["name"]: p["kind"] for p in json.loads((PAIRS / "pairs.json").read_text())}
+    folder = PAIRS / name
+    return (np.load(folder / "src.npy"), np.load(folder / "tgt.npy"),
+            np.loadtxt(folder / "gt.txt"), kinds[name])
+
+
+def random_motion(seed, max_translation=2.0):
+    rng = np.random.default_rng(seed)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    T[:3, 3] = rng.uniform(-max_translation, max_translation, 3)
+    return T
+
+
+def moved_pair(name, seed):
+    """The pair with its source moved by a random rigid motion and the truth adjusted."""
+    src, tgt, T_gt, kind = load_pair(name)
+    M = random_motion(seed)
+    return src @ M[:3, :3].T + M[:3, 3], tgt, T_gt @ np.linalg.inv(M), kind
+
+
+@pytest.fixture(scope="session")
+def kitchen_pair():
+    return moved_pair("3dmatch_redkitchen_5_6_ds", 7)

@@ -1,0 +1,50 @@
+import numpy as np
+
+from regor_ros.core.matching import (feature_distance, generalized_mutual_matches, match_features,
+                                     mutual_matches)
+
+
+def unit_rows(rng, n):
+    f = rng.random((n, 33)).astype(np.float32)
+    return f / np.linalg.norm(f, axis=1, keepdims=True)
+
+
+def test_gmm_contains_mutual_matches_and_at_most_two_pairs_per_point():
+    rng = np.random.default_rng(0)
+    sim = rng.random((20, 30, 30)).astype(np.float32)
+    mutual = mutual_matches(sim)
+    gmm = generalized_mutual_matches(sim, 3)
+    assert (gmm | mutual == gmm).all()
+    assert gmm.sum() > mutual.sum()
+    assert (gmm.sum(axis=(1, 2)) <= 2 * 30).all()
+
+
+def test_gmm_with_k1_is_mutual_matching():
+    sim = np.random.default_rng(1).random((5, 12, 12))
+    np.testing.assert_array_equal(generalized_mutual_matches(sim, 1), mutual_matches(sim))
+
+
+def test_gmm_finds_a_pair_that_mutual_misses():
+    # row 0's nearest is column 0, but column 0's nearest is row 1; row 0 is column 0's second
+    sim = np.array([[[0.9, 0.1, 0.0], [0.95, 0.2, 0.1], [0.3, 0.2, 0.8]]])
+    assert not mutual_matches(sim)[0, 0, 0]
+    assert generalized_mutual_matches(sim, 3)[0, 0, 0]
+
+
+def test_match_features_nearest_and_candidates_agree_with_a_full_sort():
+    rng = np.random.default_rng(2)
+    fs, ft = unit_rows(rng, 300), unit_rows(rng, 500)
+    rows = np.arange(0, 300, 3)
+    m = match_features(fs, ft, candidates=10, candidate_rows=rows)
+    sim = fs @ ft.T
+    np.testing.assert_array_equal(m.target_index, sim.argmax(axis=1))
+    expected = np.sort(np.argsort(-sim[rows], axis=1)[:, :10], axis=1)
+    np.testing.assert_array_equal(np.sort(m.candidates, axis=1), expected)
+    np.testing.assert_allclose(m.candidate_distance,
+                               feature_distance(np.take_along_axis(sim[rows], m.candidates, 1)),
+                               atol=1e-6)
+
+
+def test_feature_distance_of_identical_unit_vectors_is_near_zero():
+    assert feature_distance(np.float32(1.0)) < 1e-2
+    assert abs(feature_distance(np.float32(-1.0)) - 2.0) < 1e-3

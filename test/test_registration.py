@@ -1,0 +1,73 @@
+"""The whole core on real pairs, each source moved by a random rigid motion."""
+import numpy as np
+import pytest
+
+from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
+from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+
+from conftest import moved_pair
+
+REAL_PAIRS = ["3dmatch_redkitchen_0_5_ds", "3dmatch_redkitchen_6_21_ds", "3dmatch_hotel_umd_8_15_ds",
+              "lidar_koide_251371071_to_251370668", "kitti07_submap_2_3", "stanford_bunny_045_to_000"]
+
+
+@pytest.mark.parametrize("name", REAL_PAIRS)
+def test_registers_real_pairs_from_an_arbitrary_pose(name):
+    src, tgt, T_gt, kind = moved_pair(name, seed=11)
+    result = register(src, tgt, RegorConfig.preset(kind))
+    assert is_success(result.transform, T_gt, kind), (
+        f"RE {rotation_error_deg(result.transform, T_gt):.1f} deg, "
+        f"TE {translation_error(result.transform, T_gt):.2f} m")
+    assert result.accepted, result.reason
+    # regeneration ends with many more correct pairs than the initial matches hold
+    assert result.num_inliers > 3 * result.initial.inlier.sum()
+
+
+def test_result_contents(kitchen_pair):
+    src, tgt, T_gt, _ = kitchen_pair
+    r = register(src, tgt, RegorConfig())
+    assert r.transform.shape == (4, 4) and np.allclose(r.transform[3], [0, 0, 0, 1])
+    assert np.allclose(r.transform[:3, :3] @ r.transform[:3, :3].T, np.eye(3), atol=1e-9)
+    assert len(r.initial.source) == r.num_source_keypoints == len(r.initial.inlier)
+    assert len(r.final.source) == r.num_inliers
+    assert 0 < r.fitness <= 1 and r.inlier_rmse < 0.1
+    assert r.covariance.shape == (6, 6)
+    assert set(r.timings) >= {"features", "matching", "initial", "regeneration", "estimation", "total"}
+    assert r.stage_sizes["initial_inliers"] > 0 and "stage2" in r.stage_sizes
+
+
+def test_same_seed_same_pose_and_prepared_target_reused(kitchen_pair):
+    src, tgt, _, _ = kitchen_pair
+    cfg = RegorConfig()
+    target = prepare_cloud(tgt, cfg, "target")
+    first = register(src, target, cfg)
+    second = register(src, target, cfg)
+    np.testing.assert_array_equal(first.transform, second.transform)
+    assert second.timings["features"] < first.timings["total"]
+
+
+def test_prepared_cloud_with_other_settings_is_refused(kitchen_pair):
+    src, tgt, _, _ = kitchen_pair
+    target = prepare_cloud(tgt, RegorConfig(), "target")
+    with pytest.raises(RegistrationError, match="prepared with other feature settings"):
+        register(src, target, RegorConfig().replace({"voxel_size": 0.06}))
+
+
+@pytest.mark.parametrize("bad, message", [
+    (np.zeros((0, 3)), "empty"),
+    (np.full((100, 3), np.nan), "NaN"),
+    (np.zeros((100, 2)), r"\(N, 3\)"),
+    (np.full((100, 3), 1e30), "beyond"),
+    ("not a cloud", "numeric"),
+    (np.zeros((500, 3)), "after downsampling"),
+])
+def test_unusable_inputs_raise_one_clear_error(kitchen_pair, bad, message):
+    with pytest.raises(RegistrationError, match=message):
+        register(bad, kitchen_pair[1], RegorConfig())
+
+
+def test_mismatched_clouds_are_not_accepted():
+    src, _, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 3)
+    _, tgt, _, _ = moved_pair("kitti07_submap_2_3", 3)
+    result = register(src * 0.2, tgt * 0.02, RegorConfig())
+    assert not result.accepted and result.reason
