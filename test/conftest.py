@@ -7,6 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+# DDS stays on loopback, in a domain of this test run's own
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", str(20 + os.getpid() % 80))
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("REGOR_DATA", REPO.parent / "shared" / "data"))
 PAIRS = DATA / "pairs"

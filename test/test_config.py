@@ -65,3 +65,11 @@ def test_every_field_has_a_description_and_range():
         if not isinstance(value, bool):
             low, high = field.metadata["range"]
             assert low is not None and high is not None, name
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_committed_parameter_files_match_the_presets(name):
+    from conftest import REPO
+    from regor_ros.tools.write_presets import preset_yaml
+    assert (REPO / "config" / f"{name}.yaml").read_text() == preset_yaml(name), \
+        "run: python -m regor_ros.tools.write_presets config"

@@ -31,6 +31,7 @@ class RegistrationResult:
     reason: str                    # why it was not accepted; empty when accepted
     num_inliers: int               # source keypoints with a target keypoint within tau_e
     fitness: float                 # num_inliers / source keypoints
+    num_feature_inliers: int       # initial feature matches consistent with the pose
     inlier_rmse: float             # RMS residual of those inliers [m]
     covariance: np.ndarray         # 6x6 over (x, y, z, roll, pitch, yaw), target frame
     initial: Correspondences       # all feature matches, inlier = within tau of the final pose
@@ -118,21 +119,25 @@ def register(source: CloudInput, target: CloudInput,
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = (np.linalg.norm(transform_points(T, init_src) - init_tgt, axis=1)
                       < config.initial.inlier_threshold)
-    accepted, reason = _quality_gate(num_inliers, fitness, config)
+    num_feature_inliers = int(initial_inlier.sum())
+    accepted, reason = _quality_gate(num_inliers, fitness, num_feature_inliers, config)
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
         transform=T, accepted=accepted, reason=reason, num_inliers=num_inliers,
-        fitness=fitness, inlier_rmse=rmse, covariance=covariance,
+        fitness=fitness, num_feature_inliers=num_feature_inliers, inlier_rmse=rmse, covariance=covariance,
         initial=Correspondences(init_src, init_tgt, initial_inlier),
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         stage_sizes=sizes, timings=timings)
 
 
-def _quality_gate(num_inliers: int, fitness: float, config: RegorConfig):
+def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int, config: RegorConfig):
     gate = config.acceptance
     if num_inliers < gate.min_inliers:
         return False, f"only {num_inliers} inliers (acceptance.min_inliers={gate.min_inliers})"
     if fitness < gate.min_fitness:
         return False, f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
+    if num_feature_inliers < gate.min_feature_inliers:
+        return False, (f"only {num_feature_inliers} feature matches agree with the pose "
+                       f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
     return True, ""

@@ -75,7 +75,7 @@ def status_message(result: RegistrationResult, extra: dict) -> String:
         "accepted": result.accepted, "reason": result.reason,
         "num_inliers": result.num_inliers, "fitness": round(result.fitness, 4),
         "inlier_rmse": round(result.inlier_rmse, 5),
-        "feature_inliers": int(result.initial.inlier.sum()),
+        "feature_inliers": result.num_feature_inliers,
         "source_keypoints": result.num_source_keypoints,
         "target_keypoints": result.num_target_keypoints,
         "stage_sizes": result.stage_sizes,

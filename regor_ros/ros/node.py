@@ -65,7 +65,8 @@ class RegisterNode(Node):
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_serial = -1
-        self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0}
+        self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0,
+                      "map_preparations": 0}
         self._stopping = False
 
         self.create_subscription(PointCloud2, "source_cloud", self._on_source,
@@ -163,6 +164,7 @@ class RegisterNode(Node):
         if cached is None or self._prepared_serial != tgt.serial or cached.config != config.features:
             self._prepared_target = prepare_cloud(tgt.points, config, "target")
             self._prepared_serial = tgt.serial
+            self.stats["map_preparations"] += 1
             self.get_logger().info(f"map prepared: {len(self._prepared_target)} keypoints")
         return self._prepared_target
 

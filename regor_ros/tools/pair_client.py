@@ -89,16 +89,17 @@ class PairClient(Node):
                       source_frame: str = "scan", target_frame: str = "map"):
         """Publish both clouds (again every RETRY_S while unanswered) until a status arrives;
         returns (pose or None, status)."""
-        seen = len(self.statuses)
+        seen, poses_seen = len(self.statuses), len(self.poses)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             self.publish(xyz_to_cloud(src, self.header(source_frame)),
                          xyz_to_cloud(tgt, self.header(target_frame)))
             if self.spin_until(lambda: len(self.statuses) > seen, min(RETRY_S, deadline - time.monotonic())):
                 status = self.statuses[seen]
-                if status["accepted"]:
-                    self.spin_until(lambda: len(self.poses) > 0, 2.0)
-                return (self.poses[-1] if status["accepted"] and self.poses else None), status
+                if not status["accepted"]:
+                    return None, status
+                self.spin_until(lambda: len(self.poses) > poses_seen, 5.0)
+                return (self.poses[poses_seen] if len(self.poses) > poses_seen else None), status
         return None, None
 
 

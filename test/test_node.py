@@ -1,0 +1,185 @@
+"""The installed register_node, built with colcon and started as a process, over real DDS."""
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
+from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import Header
+
+from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+from regor_ros.ros.pointcloud import xyz_to_cloud
+from regor_ros.tools.pair_client import PairClient, pose_to_matrix
+
+from conftest import REPO, moved_pair
+
+TIMEOUT = 90.0
+
+
+@pytest.fixture(scope="module")
+def install(tmp_path_factory):
+    """colcon build of this repository into a fresh install space."""
+    base = tmp_path_factory.mktemp("colcon")
+    subprocess.run(["colcon", "--log-base", str(base / "log"), "build", "--base-paths", str(REPO),
+                    "--build-base", str(base / "build"), "--install-base", str(base / "install")],
+                   cwd=base, check=True, capture_output=True)
+    return base / "install"
+
+
+class NodeProcess:
+    """The installed executable, started through the install space's setup script."""
+
+    def __init__(self, install: Path, *ros_args: str):
+        exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
+        assert exe.exists(), "colcon did not install lib/regor_ros/register_node"
+        command = f"source {install}/setup.bash && exec {exe} --ros-args {' '.join(ros_args)}"
+        self.log = open(install.parent / f"node-{time.monotonic_ns()}.log", "w+")
+        self.proc = subprocess.Popen(["bash", "-c", command], stdout=self.log,
+                                     stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        self.log.flush()
+        return Path(self.log.name).read_text()
+
+    def stop(self) -> float:
+        """SIGINT; returns how long the process took to exit."""
+        start = time.monotonic()
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+        return time.monotonic() - start
+
+
+@pytest.fixture(scope="module")
+def ros():
+    rclpy.init()
+    client = PairClient("regor_test_client")
+    yield client
+    client.destroy_node()
+    rclpy.try_shutdown()
+
+
+@pytest.fixture(scope="module")
+def pairs_node(install, ros):
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "indoor.yaml"))
+    assert ros.wait_for_node(TIMEOUT), node.output()
+    yield node
+    assert node.stop() < 5.0
+    assert node.proc.returncode == 0, node.output()
+
+
+def call(client, srv_type, name, request):
+    cli = client.create_client(srv_type, f"/register_node/{name}")
+    assert cli.wait_for_service(timeout_sec=TIMEOUT)
+    future = cli.call_async(request)
+    client.spin_until(future.done, TIMEOUT)
+    client.destroy_client(cli)
+    return future.result()
+
+
+def set_param(client, name, value):
+    if isinstance(value, bool):
+        pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, int):
+        pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+    elif isinstance(value, float):
+        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    else:
+        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    request = SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
+    return call(client, SetParameters, "set_parameters", request).results[0]
+
+
+def test_registers_a_real_pair_published_to_it(pairs_node, ros):
+    src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 21)
+    pose, status = ros.register_pair(src, tgt, TIMEOUT)
+    assert status is not None, pairs_node.output()
+    assert pose is not None, status
+    T = pose_to_matrix(pose)
+    assert is_success(T, T_gt, kind), (rotation_error_deg(T, T_gt), translation_error(T, T_gt))
+    assert pose.header.frame_id == "map"
+    assert ros.spin_until(lambda: ros.markers, 5.0)
+    markers = ros.markers[-1].markers
+    assert markers[0].action == markers[0].DELETEALL
+    lines = [m for m in markers[1:] if m.ns in ("inliers", "outliers")]
+    assert lines and all(m.header.frame_id == "map" for m in lines)
+    assert sum(len(m.points) // 2 for m in lines) <= 500
+
+
+def test_parameters_are_declared_with_descriptions_and_ranges(pairs_node, ros):
+    names = ["features.voxel_size", "initial.k1", "mode", "acceptance.min_fitness"]
+    answer = call(ros, DescribeParameters, "describe_parameters", DescribeParameters.Request(names=names))
+    by_name = {d.name: d for d in answer.descriptors}
+    assert by_name["features.voxel_size"].floating_point_range[0].from_value > 0
+    assert by_name["initial.k1"].integer_range[0].to_value >= 20
+    assert all(d.description for d in answer.descriptors)
+    values = call(ros, GetParameters, "get_parameters", GetParameters.Request(names=["preset", "initial.k1"]))
+    assert values.values[0].string_value == "indoor" and values.values[1].integer_value == 20
+
+
+def test_invalid_changes_are_rejected_with_a_reason_and_valid_ones_apply(pairs_node, ros):
+    out_of_range = set_param(ros, "features.voxel_size", -1.0)
+    assert not out_of_range.successful
+    inconsistent = set_param(ros, "initial.k2", 30)
+    assert not inconsistent.successful and "k1" in inconsistent.reason
+    bad_choice = set_param(ros, "mode", "sometimes")
+    assert not bad_choice.successful and "pairs, map" in bad_choice.reason
+    assert set_param(ros, "max_markers", 50).successful
+    src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 22)
+    ros.markers.clear()
+    ros.register_pair(src, tgt, TIMEOUT)
+    assert ros.spin_until(lambda: ros.markers, 5.0)
+    assert sum(len(m.points) // 2 for m in ros.markers[-1].markers) <= 50
+
+
+def test_bad_cloud_is_skipped_and_the_next_pair_still_registers(pairs_node, ros):
+    broken = PointCloud2(header=Header(frame_id="scan"), height=1, width=100, point_step=12,
+                         row_step=1200, data=b"\x00" * 10,
+                         fields=[PointField(name=a, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+                                 for i, a in enumerate("xyz")])
+    ros.publish(source=broken)
+    ros.publish(source=xyz_to_cloud(np.zeros((3, 3)), ros.header("scan")))
+    src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 23)
+    pose, status = ros.register_pair(src, tgt, TIMEOUT)
+    assert pose is not None and is_success(pose_to_matrix(pose), T_gt, kind)
+    assert status["bad_inputs"] >= 1
+    assert "skipped" in pairs_node.output()
+    assert pairs_node.proc.poll() is None
+
+
+def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
+    pairs_node.stop()
+    node = NodeProcess(install, "-p", "mode:=map", "-r", "__node:=register_node")
+    try:
+        assert ros.wait_for_node(TIMEOUT), node.output()
+        src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
+        ros.publish(target=xyz_to_cloud(tgt, ros.header("map")))
+        for seed in (25, 26):
+            moved, _, truth, _ = moved_pair("3dmatch_redkitchen_5_6_ds", seed)
+            seen = len(ros.poses)
+            ros.publish(source=xyz_to_cloud(moved, ros.header("scan")))
+            assert ros.spin_until(lambda: len(ros.poses) > seen, TIMEOUT), node.output()
+            assert is_success(pose_to_matrix(ros.poses[seen]), truth, kind)
+        first, second = ros.statuses[-2], ros.statuses[-1]
+        assert second["mode"] == "map" and second["registrations"] == first["registrations"] + 1
+        assert second["map_preparations"] == first["map_preparations"]
+    finally:
+        assert node.stop() < 5.0
+
+
+def test_invalid_parameter_file_value_stops_with_a_clear_message(install):
+    node = NodeProcess(install, "-p", "features.voxel_size:=-2.0")
+    assert node.proc.wait(timeout=TIMEOUT) != 0
+    assert "voxel_size" in node.output()
+    assert "Traceback" not in node.output()
