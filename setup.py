@@ -26,6 +26,7 @@ setup(
         "console_scripts": [
             "register_node = regor_ros.ros.node:main",
             "regor-pair-client = regor_ros.tools.pair_client:main",
+            "regor-bench = regor_ros.tools.benchmark:main",
         ],
     },
 )

@@ -1,0 +1,274 @@
+"""regor-bench: Regor against the methods users would otherwise pick, on a folder of real pairs.
+
+A folder holds ``pairs.json`` (name and kind of every pair) and ``<name>/src.npy``,
+``tgt.npy``, ``gt.txt`` (T_target_source). Each pair is registered by every method on the same
+downsampled clouds and FPFH features (preset chosen by kind); ``--rotate SEED`` first moves every
+source by a random rigid motion (truth adjusted). Writes a markdown table, a per-pair CSV and
+plots, and prints the table.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+import traceback
+from collections import defaultdict
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..core import RegorConfig, prepare_cloud
+from ..core.config import ConfigError
+from ..core.matching import match_features
+from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, rotation_error_deg,
+                            translation_error)
+from .peers import DESCRIPTIONS, METHODS
+
+CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
+              "translation_error_m", "seconds_registration", "seconds_total", "inliers_final",
+              "final_count", "inliers_initial", "initial_count", "error"]
+
+
+def random_motion(seed: int, pair_index: int) -> np.ndarray:
+    rng = np.random.default_rng([seed, pair_index])
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    T[:3, 3] = rng.uniform(-1.0, 1.0, 3)
+    return T
+
+
+def load_pairs(folder: Path, name_filter: Optional[str]):
+    listing = json.loads((folder / "pairs.json").read_text())
+    for entry in listing:
+        if name_filter and name_filter not in entry["name"]:
+            continue
+        d = folder / entry["name"]
+        yield entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"), np.loadtxt(d / "gt.txt")
+
+
+def evaluate_pair(name, kind, src, tgt, T_gt, methods, config: RegorConfig, seed) -> List[dict]:
+    """Every method on one pair; a crash counts as a failure with its error recorded."""
+    t0 = time.perf_counter()
+    source, target = prepare_cloud(src, config, "source"), prepare_cloud(tgt, config, "target")
+    feature_seconds = time.perf_counter() - t0
+    threshold = INLIER_THRESHOLDS[kind]
+    nearest = match_features(source.features, target.features, 1, np.zeros(0, np.int64)).target_index
+    initial_correct = int(correct_mask(source.points, target.points[nearest], T_gt, threshold).sum())
+    rows = []
+    for method in methods:
+        row = {"seed": seed, "pair": name, "kind": kind, "method": method, "success": False,
+               "accepted": "", "inliers_initial": initial_correct, "initial_count": len(source),
+               "error": ""}
+        try:
+            out = METHODS[method](source, target, src, tgt, config, seed or 0)
+        except Exception as exc:  # a crashing peer fails this pair; the run goes on
+            row["error"] = f"{type(exc).__name__}: {exc}".replace("\n", " ")[:200]
+            traceback.print_exc(file=sys.stderr)
+            rows.append(row)
+            continue
+        row.update({
+            "success": is_success(out.transform, T_gt, kind),
+            "accepted": "" if out.accepted is None else out.accepted,
+            "rotation_error_deg": rotation_error_deg(out.transform, T_gt),
+            "translation_error_m": translation_error(out.transform, T_gt),
+            "seconds_registration": out.seconds,
+            "seconds_total": out.seconds + (0.0 if out.includes_features else feature_seconds),
+        })
+        if out.final is not None:
+            row["inliers_final"] = int(correct_mask(*out.final, T_gt, threshold).sum())
+            row["final_count"] = len(out.final[0])
+        rows.append(row)
+    return rows
+
+
+def _mean(values) -> float:
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def summarise(rows: List[dict]) -> Dict:
+    """Per (method, kind) figures, kind "all" included; recall also as mean and spread over seeds."""
+    groups = defaultdict(list)
+    for r in rows:
+        groups[(r["method"], r["kind"])].append(r)
+        groups[(r["method"], "all")].append(r)
+    summary = {}
+    for key, rs in groups.items():
+        ok = [r for r in rs if r["success"]]
+        by_seed = defaultdict(list)
+        for r in rs:
+            by_seed[r["seed"]].append(r["success"])
+        seed_recalls = [np.mean(v) for v in by_seed.values()]
+        with_final = [r for r in rs if "inliers_final" in r]
+        timed = [r for r in rs if "seconds_total" in r]
+        accepted = [r for r in rs if r["accepted"] is True]
+        summary[key] = {
+            "pairs": len(rs),
+            "successes": len(ok),
+            "recall": len(ok) / len(rs),
+            "recall_spread": float(np.std(seed_recalls)) if len(seed_recalls) > 1 else 0.0,
+            "re": _mean([r["rotation_error_deg"] for r in ok]),
+            "te_cm": 100 * _mean([r["translation_error_m"] for r in ok]),
+            "ip": _mean([r["inliers_final"] / r["final_count"] if r["final_count"] else 0.0 for r in with_final]),
+            "in": _mean([r["inliers_final"] for r in with_final]),
+            "inr": 100 * _mean([r["inliers_final"] / r["inliers_initial"] if r["inliers_initial"]
+                                else r["inliers_final"] for r in with_final]),
+            "fmr": 100 * _mean([r["inliers_initial"] / r["initial_count"] > 0.05 for r in rs]),
+            "median_s": float(np.median([r["seconds_total"] for r in timed])) if timed else float("nan"),
+            "p90_s": float(np.percentile([r["seconds_total"] for r in timed], 90)) if timed else float("nan"),
+            "median_reg_s": float(np.median([r["seconds_registration"] for r in timed])) if timed else float("nan"),
+            "accepted": len(accepted) if rs[0]["accepted"] != "" else None,
+            "false_accepts": sum(1 for r in accepted if not r["success"]) if accepted or rs[0]["accepted"] != "" else None,
+        }
+    return summary
+
+
+def _fmt(value, spec: str) -> str:
+    return "–" if value is None or (isinstance(value, float) and np.isnan(value)) else format(value, spec)
+
+
+def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -> str:
+    kinds = sorted({k for _, k in summary if k != "all"}) + ["all"]
+    lines = [header, "", "| kind | method | RR | successes | RE ° | TE cm | IP % | IN | INR % | "
+             "median s (reg) | p90 s | accepted (wrong) |", "|" + "---|" * 12]
+    for kind in kinds:
+        for method in methods:
+            s = summary.get((method, kind))
+            if s is None:
+                continue
+            rr = f"{100 * s['recall']:.1f} %" + (f" ± {100 * s['recall_spread']:.1f}" if s["recall_spread"] else "")
+            acc = "–" if s["accepted"] is None else f"{s['accepted']} ({s['false_accepts']})"
+            lines.append(
+                f"| {kind} | {method} | {rr} | {s['successes']}/{s['pairs']} | {_fmt(s['re'], '.2f')} | "
+                f"{_fmt(s['te_cm'], '.1f')} | {_fmt(100 * s['ip'], '.1f')} | {_fmt(s['in'], '.0f')} | "
+                f"{_fmt(s['inr'], '.0f')} | {_fmt(s['median_s'], '.2f')} ({_fmt(s['median_reg_s'], '.2f')}) | "
+                f"{_fmt(s['p90_s'], '.2f')} | {acc} |")
+    fmr = {kind: summary[(methods[0], kind)]["fmr"] for kind in kinds}
+    lines += ["", "FMR (initial FPFH matches more than 5 % correct): " +
+              ", ".join(f"{k} {v:.0f} %" for k, v in fmr.items()), ""]
+    lines += ["Per pair (successes over seeds):", "",
+              "| pair | kind | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 2)]
+    per_pair = defaultdict(lambda: defaultdict(list))
+    kind_of = {}
+    for r in rows:
+        per_pair[r["pair"]][r["method"]].append(r["success"])
+        kind_of[r["pair"]] = r["kind"]
+    for pair, by_method in per_pair.items():
+        cells = [f"{sum(by_method[m])}/{len(by_method[m])}" for m in methods]
+        lines.append(f"| {pair} | {kind_of[pair]} | " + " | ".join(cells) + " |")
+    lines += ["", "Methods:", ""] + [f"- `{m}`: {DESCRIPTIONS[m]}" for m in methods]
+    return "\n".join(lines) + "\n"
+
+
+def plots(summary: Dict, methods: List[str], out: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    kinds = sorted({k for _, k in summary})
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    width = 0.8 / len(methods)
+    x = np.arange(len(kinds))
+    for i, method in enumerate(methods):
+        recall = [100 * summary.get((method, k), {"recall": np.nan})["recall"] for k in kinds]
+        axes[0].bar(x + i * width, recall, width, label=method)
+    axes[0].set_xticks(x + 0.4 - width / 2, kinds)
+    axes[0].set_ylabel("registration recall [%]")
+    axes[0].set_title("Recall per kind")
+    axes[0].legend(fontsize=8)
+    for ax, key, label in [(axes[1], "median_s", "median time per pair, features included [s]"),
+                           (axes[2], "in", "mean correct final correspondences (IN)")]:
+        values = [summary[(m, "all")][key] for m in methods]
+        ax.bar(methods, np.nan_to_num(values), color=[f"C{i}" for i in range(len(methods))])
+        ax.set_title(label)
+        ax.tick_params(axis="x", rotation=30)
+    fig.tight_layout()
+    fig.savefig(out / "benchmark.png", dpi=90)
+    plt.close(fig)
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {cpu}, Python {platform.python_version()}"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("data", type=Path, help="folder with pairs.json and one folder per pair")
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        help=f"comma-separated subset of: {', '.join(METHODS)}")
+    parser.add_argument("--rotate", type=int, nargs="+", metavar="SEED",
+                        help="move each source by a random rigid motion drawn from SEED; several "
+                             "seeds give a mean and spread")
+    parser.add_argument("--pairs", help="only pairs whose name contains this")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a core parameter for every preset (repeatable)")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    args = parser.parse_args(argv)
+
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        parser.error(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
+    if not (args.data / "pairs.json").is_file():
+        parser.error(f"{args.data} has no pairs.json")
+    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
+    try:
+        presets = {k: RegorConfig.preset(k).replace(overrides) for k in ("indoor", "outdoor", "object")}
+    except ConfigError as exc:
+        parser.error(str(exc))
+
+    seeds = args.rotate or [None]
+    pairs = list(load_pairs(args.data, args.pairs))
+    rows: List[dict] = []
+    start = time.perf_counter()
+    total = len(pairs) * len(seeds)
+    done = 0
+    for seed in seeds:
+        for index, (name, kind, src, tgt, T_gt) in enumerate(pairs):
+            if seed is not None:
+                M = random_motion(seed, index)
+                src, T_gt = src @ M[:3, :3].T + M[:3, 3], T_gt @ np.linalg.inv(M)
+            pair_rows = evaluate_pair(name, kind, src, tgt, T_gt, methods, presets[kind], seed)
+            rows += pair_rows
+            done += 1
+            verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}" for r in pair_rows)
+            print(f"[{done}/{total} {time.perf_counter() - start:6.0f} s] seed {seed} {name}: {verdict}",
+                  flush=True)
+
+    summary = summarise(rows)
+    command = "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
+    header = (f"# regor_ros benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
+              f"Command: `{command}`  \nData: `{args.data}` ({len(pairs)} pairs), rotation seeds: "
+              f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
+              "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
+              "with FPFH included (registration alone in brackets); `accepted (wrong)`: poses that "
+              "passed the method's own quality gate, and how many of those were wrong.")
+    report = markdown(summary, rows, methods, header)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "benchmark.md").write_text(report)
+    with open(args.out / "benchmark.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    plots(summary, methods, args.out)
+    print(report)
+    print(f"wrote {args.out / 'benchmark.md'}, benchmark.csv and benchmark.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
