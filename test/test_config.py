@@ -73,3 +73,13 @@ def test_committed_parameter_files_match_the_presets(name):
     from regor_ros.tools.write_presets import preset_yaml
     assert (REPO / "config" / f"{name}.yaml").read_text() == preset_yaml(name), \
         "run: python -m regor_ros.tools.write_presets config"
+
+
+def test_readme_documents_every_parameter():
+    from conftest import REPO
+    from regor_ros.ros.parameters import NodeSettings
+    import dataclasses
+    readme = (REPO / "README.md").read_text()
+    names = [n for n, _, _ in RegorConfig().parameters()] + [f.name for f in dataclasses.fields(NodeSettings)]
+    missing = [n for n in names if f"`{n}`" not in readme]
+    assert not missing, f"README lacks {missing}"

@@ -1,0 +1,59 @@
+"""regor-bench end to end on two real pairs with two fast methods, and its summary arithmetic."""
+import csv
+import json
+
+import pytest
+
+from regor_ros.tools.benchmark import main, summarise
+
+from conftest import PAIRS
+
+TWO = ["3dmatch_redkitchen_5_6_ds", "stanford_bunny_045_to_000"]
+
+
+@pytest.fixture
+def two_pairs(tmp_path):
+    folder = tmp_path / "pairs"
+    folder.mkdir()
+    listing = [p for p in json.loads((PAIRS / "pairs.json").read_text()) if p["name"] in TWO]
+    (folder / "pairs.json").write_text(json.dumps(listing))
+    for name in TWO:
+        (folder / name).symlink_to(PAIRS / name)
+    return folder
+
+
+def test_benchmark_command_writes_table_csv_and_plot(two_pairs, tmp_path, capsys):
+    out = tmp_path / "results"
+    assert main([str(two_pairs), "--methods", "sc2pcr++,o3d-fgr", "--rotate", "4", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "[2/2" in printed and "| all | sc2pcr++ |" in printed
+    rows = list(csv.DictReader(open(out / "benchmark.csv")))
+    assert len(rows) == 4 and {r["method"] for r in rows} == {"sc2pcr++", "o3d-fgr"}
+    sc2 = [r for r in rows if r["method"] == "sc2pcr++"]
+    assert all(r["success"] == "True" for r in sc2)
+    assert all(float(r["seconds_total"]) >= float(r["seconds_registration"]) > 0 for r in rows)
+    table = (out / "benchmark.md").read_text()
+    assert "| object | sc2pcr++ | 100.0 % | 1/1 |" in table
+    assert (out / "benchmark.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_unknown_method_is_refused(two_pairs):
+    with pytest.raises(SystemExit):
+        main([str(two_pairs), "--methods", "icp"])
+
+
+def row(seed, method, kind, success, accepted=""):
+    return {"seed": seed, "pair": f"p{seed}", "kind": kind, "method": method, "success": success,
+            "accepted": accepted, "rotation_error_deg": 2.0, "translation_error_m": 0.1,
+            "seconds_registration": 1.0, "seconds_total": 2.0, "inliers_final": 30,
+            "final_count": 60, "inliers_initial": 10, "initial_count": 100}
+
+
+def test_summary_recall_spread_inr_and_false_accepts():
+    rows = [row(1, "m", "indoor", True, True), row(1, "m", "indoor", False, True),
+            row(2, "m", "indoor", True, False), row(2, "m", "indoor", True, True)]
+    s = summarise(rows)[("m", "indoor")]
+    assert s["recall"] == 0.75 and s["recall_spread"] == pytest.approx(0.25)
+    assert s["ip"] == 0.5 and s["inr"] == pytest.approx(300.0) and s["fmr"] == 100.0
+    assert s["accepted"] == 3 and s["false_accepts"] == 1
+    assert s["re"] == 2.0 and s["te_cm"] == pytest.approx(10.0)

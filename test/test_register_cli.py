@@ -1,0 +1,112 @@
+"""regor-register end to end: every reader, a real pair from files, errors, the picture."""
+import json
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from regor_ros.core.metrics import is_success
+from regor_ros.tools.cloud_io import CloudFileError, read_cloud
+from regor_ros.tools.picture import PICTURE_SIZE
+
+from conftest import moved_pair
+
+POINTS = np.random.default_rng(0).uniform(-1, 1, size=(200, 3))
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "regor_ros.tools.register_cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def write_ply(path, points, ascii_format):
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    assert o3d.io.write_point_cloud(str(path), pcd, write_ascii=ascii_format)
+
+
+@pytest.mark.parametrize("ascii_format", [True, False])
+def test_reads_ascii_and_binary_ply(tmp_path, ascii_format):
+    path = tmp_path / "cloud.ply"
+    write_ply(path, POINTS, ascii_format)
+    assert (b"format ascii" in path.read_bytes()[:200]) == ascii_format
+    np.testing.assert_allclose(read_cloud(path), POINTS, atol=1e-6)
+
+
+def test_reads_pcd_xyz_txt_npy_and_kitti_bin(tmp_path):
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(POINTS))
+    o3d.io.write_point_cloud(str(tmp_path / "c.pcd"), pcd)
+    np.savetxt(tmp_path / "c.xyz", POINTS)
+    np.savetxt(tmp_path / "c.txt", np.c_[POINTS, np.ones(len(POINTS))], delimiter=" ")
+    np.save(tmp_path / "c.npy", POINTS)
+    np.c_[POINTS, np.zeros(len(POINTS))].astype("<f4").tofile(tmp_path / "c.bin")
+    for name, tol in [("c.pcd", 1e-6), ("c.xyz", 1e-12), ("c.txt", 1e-12), ("c.npy", 0), ("c.bin", 1e-6)]:
+        np.testing.assert_allclose(read_cloud(tmp_path / name), POINTS, atol=tol, err_msg=name)
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("empty.ply", b"", "empty"),
+    ("junk.pcd", b"this is not a point cloud\n", "no points could be read"),
+    ("short.bin", struct.pack("<3f", 1, 2, 3), "whole number of KITTI points"),
+    ("words.xyz", b"a b c\n", "not a table of numbers"),
+    ("cloud.las", b"LASF", "unknown format"),
+])
+def test_unreadable_files_raise_a_clear_error(tmp_path, name, content, message):
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(CloudFileError, match=message):
+        read_cloud(tmp_path / name)
+
+
+@pytest.fixture(scope="module")
+def real_files(tmp_path_factory):
+    """A real pair, source written as binary ply and target as KITTI bin, with its truth."""
+    folder = tmp_path_factory.mktemp("pair")
+    src, tgt, T_gt, _ = moved_pair("3dmatch_redkitchen_0_5_ds", 31)
+    write_ply(folder / "src.ply", src, ascii_format=False)
+    np.c_[tgt, np.zeros(len(tgt))].astype("<f4").tofile(folder / "tgt.bin")
+    np.savetxt(folder / "gt.txt", T_gt)
+    return folder, T_gt
+
+
+def test_registers_a_real_pair_from_files(real_files):
+    folder, T_gt = real_files
+    out = folder / "T.txt"
+    picture = folder / "picture.png"
+    proc = run_cli(folder / "src.ply", folder / "tgt.bin", "--ground-truth", folder / "gt.txt",
+                   "--output", out, "--picture", picture, "--set", "seed=3")
+    assert proc.returncode == 0, proc.stderr
+    assert "T_target_source" in proc.stdout and "rotation" in proc.stdout and "accepted" in proc.stdout
+    assert is_success(np.loadtxt(out), T_gt, "indoor")
+    header = picture.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n"
+    assert struct.unpack(">II", header[16:24]) == PICTURE_SIZE
+
+
+def test_json_output(real_files):
+    folder, T_gt = real_files
+    proc = run_cli(folder / "src.ply", folder / "tgt.bin", "--json", "--ground-truth", folder / "gt.txt")
+    rep = json.loads(proc.stdout)
+    assert proc.returncode == (0 if rep["accepted"] else 1)
+    assert np.array(rep["transform"]).shape == (4, 4)
+    assert rep["rotation_error_deg"] < 15 and set(rep["timings"]) >= {"features", "total"}
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda d: d / "missing.npy", "no such file"),
+    (lambda d: (d / "empty.pcd").write_bytes(b"") or d / "empty.pcd", "empty"),
+    (lambda d: np.save(d / "few.npy", np.zeros((5, 3))) or d / "few.npy", "after downsampling"),
+])
+def test_bad_inputs_exit_nonzero_with_one_line(tmp_path, make, message):
+    np.save(tmp_path / "ok.npy", POINTS)
+    proc = run_cli(make(tmp_path), tmp_path / "ok.npy")
+    assert proc.returncode == 2
+    assert message in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
+
+
+def test_bad_override_is_reported(tmp_path):
+    np.save(tmp_path / "ok.npy", POINTS)
+    proc = run_cli(tmp_path / "ok.npy", tmp_path / "ok.npy", "--set", "voxel_size=-3")
+    assert proc.returncode == 2 and "features.voxel_size" in proc.stderr
