@@ -1,6 +1,7 @@
 """Shared fixtures: the real scan pairs in ../shared/data (override with REGOR_DATA)."""
 import json
 import os
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -42,3 +43,25 @@ def moved_pair(name, seed):
 @pytest.fixture(scope="session")
 def kitchen_pair():
     return moved_pair("3dmatch_redkitchen_5_6_ds", 7)
+
+
+@pytest.fixture(scope="session")
+def install(tmp_path_factory):
+    """colcon build of this repository into a fresh install space."""
+    base = tmp_path_factory.mktemp("colcon")
+    subprocess.run(["colcon", "--log-base", str(base / "log"), "build", "--base-paths", str(REPO),
+                    "--build-base", str(base / "build"), "--install-base", str(base / "install")],
+                   cwd=base, check=True, capture_output=True)
+    return base / "install"
+
+
+@pytest.fixture(scope="session")
+def ros():
+    import rclpy
+    from regor_ros.tools.pair_client import PairClient
+
+    rclpy.init()
+    client = PairClient("regor_test_client")
+    yield client
+    client.destroy_node()
+    rclpy.try_shutdown()

@@ -1,72 +1,16 @@
 """The installed register_node, built with colcon and started as a process, over real DDS."""
-import os
-import signal
-import subprocess
-import sys
-import time
-from pathlib import Path
-
 import numpy as np
 import pytest
-import rclpy
-from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
+from rcl_interfaces.srv import DescribeParameters, GetParameters
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
 from regor_ros.ros.pointcloud import xyz_to_cloud
-from regor_ros.tools.pair_client import PairClient, pose_to_matrix
+from regor_ros.tools.pair_client import pose_to_matrix
 
-from conftest import REPO, moved_pair
-
-TIMEOUT = 90.0
-
-
-@pytest.fixture(scope="module")
-def install(tmp_path_factory):
-    """colcon build of this repository into a fresh install space."""
-    base = tmp_path_factory.mktemp("colcon")
-    subprocess.run(["colcon", "--log-base", str(base / "log"), "build", "--base-paths", str(REPO),
-                    "--build-base", str(base / "build"), "--install-base", str(base / "install")],
-                   cwd=base, check=True, capture_output=True)
-    return base / "install"
-
-
-class NodeProcess:
-    """The installed executable, started through the install space's setup script."""
-
-    def __init__(self, install: Path, *ros_args: str):
-        exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
-        assert exe.exists(), "colcon did not install lib/regor_ros/register_node"
-        command = f"source {install}/setup.bash && exec {exe} --ros-args {' '.join(ros_args)}"
-        self.log = open(install.parent / f"node-{time.monotonic_ns()}.log", "w+")
-        self.proc = subprocess.Popen(["bash", "-c", command], stdout=self.log,
-                                     stderr=subprocess.STDOUT)
-
-    def output(self) -> str:
-        self.log.flush()
-        return Path(self.log.name).read_text()
-
-    def stop(self) -> float:
-        """SIGINT; returns how long the process took to exit."""
-        start = time.monotonic()
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            raise
-        return time.monotonic() - start
-
-
-@pytest.fixture(scope="module")
-def ros():
-    rclpy.init()
-    client = PairClient("regor_test_client")
-    yield client
-    client.destroy_node()
-    rclpy.try_shutdown()
+from conftest import moved_pair
+from ros_helpers import TIMEOUT, NodeProcess, call, set_param
 
 
 @pytest.fixture(scope="module")
@@ -77,28 +21,6 @@ def pairs_node(install, ros):
     yield node
     assert node.stop() < 5.0
     assert node.proc.returncode == 0, node.output()
-
-
-def call(client, srv_type, name, request):
-    cli = client.create_client(srv_type, f"/register_node/{name}")
-    assert cli.wait_for_service(timeout_sec=TIMEOUT)
-    future = cli.call_async(request)
-    client.spin_until(future.done, TIMEOUT)
-    client.destroy_client(cli)
-    return future.result()
-
-
-def set_param(client, name, value):
-    if isinstance(value, bool):
-        pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
-    elif isinstance(value, int):
-        pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
-    elif isinstance(value, float):
-        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
-    else:
-        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-    request = SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
-    return call(client, SetParameters, "set_parameters", request).results[0]
 
 
 def test_registers_a_real_pair_published_to_it(pairs_node, ros):

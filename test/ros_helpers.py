@@ -1,0 +1,59 @@
+"""Helpers for tests of the installed register_node: colcon build, process, parameter calls."""
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+
+TIMEOUT = 90.0
+
+
+class NodeProcess:
+    """The installed executable, started through the install space's setup script."""
+
+    def __init__(self, install: Path, *ros_args: str):
+        exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
+        assert exe.exists(), "colcon did not install lib/regor_ros/register_node"
+        command = f"source {install}/setup.bash && exec {exe} --ros-args {' '.join(ros_args)}"
+        self.log = open(install.parent / f"node-{time.monotonic_ns()}.log", "w+")
+        self.proc = subprocess.Popen(["bash", "-c", command], stdout=self.log,
+                                     stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        self.log.flush()
+        return Path(self.log.name).read_text()
+
+    def stop(self) -> float:
+        """SIGINT; returns how long the process took to exit."""
+        start = time.monotonic()
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+        return time.monotonic() - start
+
+
+def call(client, srv_type, name, request):
+    cli = client.create_client(srv_type, f"/register_node/{name}")
+    assert cli.wait_for_service(timeout_sec=TIMEOUT)
+    future = cli.call_async(request)
+    client.spin_until(future.done, TIMEOUT)
+    client.destroy_client(cli)
+    return future.result()
+
+
+def set_param(client, name, value):
+    if isinstance(value, bool):
+        pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+    elif isinstance(value, int):
+        pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+    elif isinstance(value, float):
+        pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+    else:
+        pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    request = SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
+    return call(client, SetParameters, "set_parameters", request).results[0]
