@@ -75,11 +75,10 @@ def test_committed_parameter_files_match_the_presets(name):
         "run: python -m regor_ros.tools.write_presets config"
 
 
-def test_readme_documents_every_parameter():
+def test_readme_parameter_tables_are_current():
     from conftest import REPO
-    from regor_ros.ros.parameters import NodeSettings
-    import dataclasses
+    from regor_ros.tools.write_presets import with_tables
     readme = (REPO / "README.md").read_text()
-    names = [n for n, _, _ in RegorConfig().parameters()] + [f.name for f in dataclasses.fields(NodeSettings)]
-    missing = [n for n in names if f"`{n}`" not in readme]
-    assert not missing, f"README lacks {missing}"
+    assert readme == with_tables(readme), "run: python -m regor_ros.tools.write_presets config README.md"
+    for name, _, _ in RegorConfig().parameters():
+        assert f"`{name}`" in readme

@@ -64,18 +64,36 @@ def test_point_refinement_converges_from_a_perturbed_pose(kitchen_pair):
     assert (result.distances < 0.1).all()
 
 
+AXES = np.array([1.0, 2.0, 3.0])
+
+
+def ellipsoid(n, seed):
+    """Points and unit normals on an ellipsoid with distinct axes: every motion changes it."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(n, 3))
+    points = AXES * points / np.linalg.norm(points, axis=1, keepdims=True)
+    normals = points / AXES ** 2
+    return points, normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
 def test_covariance_is_symmetric_positive_definite_and_shrinks_with_noise():
-    rng = np.random.default_rng(6)
-    src = rng.uniform(-3, 3, size=(500, 3))
+    src, normals = ellipsoid(500, 6)
     T = random_motion(7)
-    noise = rng.normal(size=(500, 3))
-    loose = pose_covariance(T, src, transform_points(T, src) + 0.05 * noise)
-    tight = pose_covariance(T, src, transform_points(T, src) + 0.005 * noise)
+    tgt = transform_points(T, src)
+    normals = normals @ T[:3, :3].T
+    noise = np.random.default_rng(8).normal(size=(500, 3))
+    loose = pose_covariance(T, src, tgt + 0.05 * noise, normals)
+    tight = pose_covariance(T, src, tgt + 0.005 * noise, normals)
     assert np.allclose(loose, loose.T)
     assert np.all(np.linalg.eigvalsh(loose) > 0)
     assert np.all(np.diag(tight) < np.diag(loose))
+    assert np.diag(loose).max() < 1.0
 
 
-def test_covariance_of_a_line_is_flagged_unconstrained():
-    src = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
-    assert pose_covariance(np.eye(4), src, src)[3, 3] >= 1e6
+def test_covariance_of_a_plane_leaves_sliding_unconstrained():
+    rng = np.random.default_rng(9)
+    src = np.c_[rng.uniform(-1, 1, size=(400, 2)), np.zeros(400)]
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
+    cov = pose_covariance(np.eye(4), src, src + rng.normal(scale=0.001, size=src.shape), normals)
+    assert cov[0, 0] >= 1e6 and cov[1, 1] >= 1e6 and cov[5, 5] >= 1e6   # x, y, yaw slide freely
+    assert cov[2, 2] < 1.0 and cov[3, 3] < 1.0 and cov[4, 4] < 1.0      # z, roll, pitch are fixed

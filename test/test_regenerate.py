@@ -10,7 +10,7 @@ from conftest import random_motion
 
 
 def cloud(points):
-    return PreparedCloud(points, np.zeros((len(points), 33), np.float32), cKDTree(points),
+    return PreparedCloud(points, np.zeros_like(points), np.zeros((len(points), 33), np.float32), cKDTree(points),
                          FeatureConfig(), len(points))
 
 

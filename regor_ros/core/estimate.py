@@ -47,6 +47,13 @@ def weighted_kabsch(source: np.ndarray, target: np.ndarray,
     return to_matrix(R, t)
 
 
+def poses_close(A: np.ndarray, B: np.ndarray, angle_deg: float, translation: float) -> bool:
+    """True when two transforms differ by less than ``angle_deg`` and ``translation``."""
+    cos = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1.0) / 2.0
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return bool(angle < angle_deg and np.linalg.norm(A[:3, 3] - B[:3, 3]) < translation)
+
+
 def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
     return 1.0 / (1.0 + (residual / threshold) ** 2)
 
@@ -80,8 +87,13 @@ def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, thresh
                  iterations: int) -> PointRefinement:
     """The estimator's point-level refinement: every source keypoint against its nearest target
     keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
+    def match(T):
+        # neighbours beyond the threshold are not needed: the bound prunes the tree search
+        return target_tree.query(transform_points(T, source), distance_upper_bound=threshold,
+                                 workers=-1)
+
     previous = -1
-    distances, nearest = target_tree.query(transform_points(T, source), workers=-1)
+    distances, nearest = match(T)
     inliers = distances < threshold
     for _ in range(iterations):
         count = int(inliers.sum())
@@ -90,34 +102,33 @@ def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, thresh
         previous = count
         T = weighted_kabsch(source[inliers], target_tree.data[nearest[inliers]],
                             cauchy_weights(distances[inliers], threshold))
-        distances, nearest = target_tree.query(transform_points(T, source), workers=-1)
+        distances, nearest = match(T)
         inliers = distances < threshold
     index = np.flatnonzero(inliers)
     return PointRefinement(T, index, nearest[index], distances[index])
 
 
-def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """6x6 covariance of (x, y, z, roll, pitch, yaw) from point-to-point residuals of the inliers.
+UNCONSTRAINED_VARIANCE = 1e6  # covariance diagonal reported for degrees of freedom nothing fixes
 
-    Gauss-Newton approximation sigma^2 (J^T J)^-1 for a small motion applied in the target frame
-    (translation first, as ROS orders it). Returns a huge diagonal when the geometry does not
-    constrain all six degrees of freedom.
-    """
+
+def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
+                    target_normals: np.ndarray) -> np.ndarray:
+    """6x6 covariance of (x, y, z, roll, pitch, yaw) from the point-to-plane residuals of the
+    inlier pairs: sigma^2 (J^T J)^-1 for a small motion applied in the target frame (translation
+    first, as ROS orders it). Point-to-plane exposes what the surfaces leave free (sliding along a
+    plane or a corridor); such degrees of freedom get UNCONSTRAINED_VARIANCE."""
     moved = transform_points(T, source)
     n = len(moved)
-    if n < 3:
-        return np.eye(6) * 1e6
-    residual = moved - target
-    J = np.zeros((n, 3, 6))
-    J[:, :, :3] = np.eye(3)
-    x, y, z = moved[:, 0], moved[:, 1], moved[:, 2]
-    # d(moved)/d(omega) = -[moved]_x
-    J[:, 0, 4], J[:, 0, 5] = z, -y
-    J[:, 1, 3], J[:, 1, 5] = -z, x
-    J[:, 2, 3], J[:, 2, 4] = y, -x
-    JtJ = np.einsum("nij,nik->jk", J, J)
-    dof = max(3 * n - 6, 1)
-    sigma2 = float((residual ** 2).sum()) / dof
-    if np.linalg.cond(JtJ) > 1e12:
-        return np.eye(6) * 1e6
-    return sigma2 * np.linalg.inv(JtJ)
+    if n < 7:
+        return np.eye(6) * UNCONSTRAINED_VARIANCE
+    residual = ((moved - target) * target_normals).sum(axis=1)
+    J = np.hstack([target_normals, np.cross(moved, target_normals)])   # (n, 6)
+    JtJ = J.T @ J
+    eigenvalues, eigenvectors = np.linalg.eigh(JtJ)
+    sigma2 = max(float(residual @ residual) / (n - 6), 1e-12)
+    constrained = eigenvalues > 1e-9 * max(eigenvalues[-1], 1e-12)
+    inverse = np.where(constrained, 1.0 / np.where(constrained, eigenvalues, 1.0), 0.0)
+    covariance = (eigenvectors * (sigma2 * inverse)) @ eigenvectors.T
+    if not constrained.all():
+        covariance += UNCONSTRAINED_VARIANCE * (eigenvectors[:, ~constrained] @ eigenvectors[:, ~constrained].T)
+    return covariance

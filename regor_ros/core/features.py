@@ -26,6 +26,7 @@ class PreparedCloud:
     """Keypoints (every voxel-downsampled point), their unit FPFH features and a kd-tree."""
 
     points: np.ndarray    # (N, 3) float64, metres
+    normals: np.ndarray   # (N, 3) unit normals (for the pose covariance)
     features: np.ndarray  # (N, 33) float32, L2-normalised
     tree: cKDTree
     config: FeatureConfig  # the settings it was prepared with
@@ -73,5 +74,6 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
     features = np.asarray(fpfh.data, dtype=np.float32).T
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     keypoints = np.asarray(down.points, dtype=np.float64)
-    return PreparedCloud(keypoints, np.ascontiguousarray(features), cKDTree(keypoints),
+    normals = np.asarray(down.normals, dtype=np.float64)
+    return PreparedCloud(keypoints, normals, np.ascontiguousarray(features), cKDTree(keypoints),
                          config, len(points))

@@ -14,7 +14,7 @@ from scipy.spatial.distance import cdist
 
 from .config import InitialConfig
 from .consistency import leading_eigenvector, length_residual, top_k_stable
-from .estimate import post_refine, transform_points, weighted_kabsch
+from .estimate import poses_close, post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
 from .matching import FeatureMatches
 
@@ -114,15 +114,6 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
     return int(agree.sum(axis=1).max()), vp, vq
 
 
-def _is_duplicate(T: np.ndarray, kept: list, translation_tol: float) -> bool:
-    for K in kept:
-        cos = (np.trace(T[:3, :3].T @ K[:3, :3]) - 1.0) / 2.0
-        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        if angle < DEDUPE_ANGLE_DEG and np.linalg.norm(T[:3, 3] - K[:3, 3]) < translation_tol:
-            return True
-    return False
-
-
 def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                   matches: FeatureMatches, cfg: InitialConfig,
                   rng: np.random.Generator) -> InitialResult:
@@ -149,8 +140,8 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     refine_src, refine_tgt = src, tgt
     for h in ranked:
         T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1)
-        if cfg.dedupe_hypotheses and _is_duplicate(
-                T, kept, DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold):
+        tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
+        if cfg.dedupe_hypotheses and any(poses_close(T, K, DEDUPE_ANGLE_DEG, tolerance) for K in kept):
             continue
         kept.append(T)
         fitness, verified_src, verified_tgt = fs_tcd_fitness(

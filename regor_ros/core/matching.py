@@ -47,7 +47,8 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray, can
         lo, hi = np.searchsorted(candidate_rows, [start, start + len(sim)])
         if lo == hi:
             continue
-        sim = sim[candidate_rows[lo:hi] - start]
+        if hi - lo < len(sim):
+            sim = sim[candidate_rows[lo:hi] - start]
         rows = len(sim)
         floor = np.partition(sim, kth, axis=1)[:, kth]
         r, c = np.nonzero(sim >= floor[:, None])

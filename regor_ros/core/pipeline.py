@@ -8,13 +8,16 @@ from typing import Dict, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import point_refine, pose_covariance, transform_points, weighted_kabsch
+from .estimate import UNCONSTRAINED_VARIANCE, point_refine, pose_covariance, poses_close, transform_points, weighted_kabsch
 from .features import PreparedCloud, RegistrationError, prepare
 from .initial import initial_stage
 from .matching import match_features
 from .regenerate import regenerate
 
 CloudInput = Union[np.ndarray, PreparedCloud]
+# the regenerated and the initial pose count as one when this close: no second refinement needed
+SAME_POSE_DEG = 2.0
+SAME_POSE_FRACTION = 0.5  # of the estimator's inlier threshold
 
 
 @dataclass
@@ -38,6 +41,7 @@ class RegistrationResult:
     final: Correspondences         # the estimator's point-level inlier pairs
     num_source_keypoints: int
     num_target_keypoints: int
+    selected: str = "regeneration"  # which pose the estimator kept: "regeneration" or "initial"
     stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
     timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
 
@@ -105,13 +109,23 @@ def register(source: CloudInput, target: CloudInput,
             sizes[f"stage{stage}"] = len(seed_src)
     lap("regeneration")
 
-    T = weighted_kabsch(seed_src, seed_tgt) if len(seed_src) >= 3 else initial.transform
     est = config.estimation
-    refined = point_refine(T, src_cloud.points, tgt_cloud.tree, est.inlier_threshold, est.max_iterations)
+    refine = lambda T: point_refine(T, src_cloud.points, tgt_cloud.tree, est.inlier_threshold,  # noqa: E731
+                                    est.max_iterations)
+    selected = "regeneration"
+    if len(seed_src) >= 3:
+        refined = refine(weighted_kabsch(seed_src, seed_tgt))
+        if est.compare_initial_pose and not poses_close(
+                refined.transform, initial.transform, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
+            alternative = refine(initial.transform)
+            if len(alternative.source_index) > len(refined.source_index):
+                refined, selected = alternative, "initial"
+    else:
+        refined, selected = refine(initial.transform), "initial"
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
-    covariance = pose_covariance(T, final_src, final_tgt)
+    covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index])
     lap("estimation")
 
     num_inliers = len(final_src)
@@ -120,7 +134,7 @@ def register(source: CloudInput, target: CloudInput,
     initial_inlier = (np.linalg.norm(transform_points(T, init_src) - init_tgt, axis=1)
                       < config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
-    accepted, reason = _quality_gate(num_inliers, fitness, num_feature_inliers, config)
+    accepted, reason = _quality_gate(num_inliers, fitness, num_feature_inliers, covariance, config)
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
         transform=T, accepted=accepted, reason=reason, num_inliers=num_inliers,
@@ -128,13 +142,16 @@ def register(source: CloudInput, target: CloudInput,
         initial=Correspondences(init_src, init_tgt, initial_inlier),
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
-        stage_sizes=sizes, timings=timings)
+        selected=selected, stage_sizes=sizes, timings=timings)
 
 
-def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int, config: RegorConfig):
+def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int,
+                  covariance: np.ndarray, config: RegorConfig):
     gate = config.acceptance
     if num_inliers < gate.min_inliers:
         return False, f"only {num_inliers} inliers (acceptance.min_inliers={gate.min_inliers})"
+    if np.linalg.eigvalsh(covariance).max() >= UNCONSTRAINED_VARIANCE:
+        return False, "the inliers do not constrain all six degrees of freedom (plane or line?)"
     if fitness < gate.min_fitness:
         return False, f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
     if num_feature_inliers < gate.min_feature_inliers:

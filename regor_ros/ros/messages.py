@@ -78,7 +78,7 @@ def status_message(result: RegistrationResult, extra: dict) -> String:
         "feature_inliers": result.num_feature_inliers,
         "source_keypoints": result.num_source_keypoints,
         "target_keypoints": result.num_target_keypoints,
-        "stage_sizes": result.stage_sizes,
+        "stage_sizes": result.stage_sizes, "selected": result.selected,
         "timings": {k: round(v, 4) for k, v in result.timings.items()},
     }
     report.update(extra)

@@ -6,7 +6,9 @@ parameter changes.
 """
 from __future__ import annotations
 
+import re
 import threading
+import time
 from dataclasses import dataclass
 from typing import Optional
 
@@ -68,6 +70,7 @@ class RegisterNode(Node):
         self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0,
                       "map_preparations": 0}
         self._stopping = False
+        self._warned = {}  # kind of bad input -> when it was last logged
 
         self.create_subscription(PointCloud2, "source_cloud", self._on_source,
                                  qos_profile(self.settings.source_qos))
@@ -124,8 +127,16 @@ class RegisterNode(Node):
             self._lock.notify()
 
     def _bad_input(self, text: str) -> None:
+        """Count and warn, at most once per WARN_THROTTLE_S for each kind of problem (the text
+        with its numbers blanked), so a flood of one bad kind cannot hide another."""
         self.stats["bad_inputs"] += 1
-        self.get_logger().warning(text, throttle_duration_sec=WARN_THROTTLE_S)
+        kind = re.sub(r"[-+.\de]*\d[-+.\de]*", "#", text)
+        now = time.monotonic()
+        with self._lock:
+            if now - self._warned.get(kind, -WARN_THROTTLE_S) < WARN_THROTTLE_S:
+                return
+            self._warned[kind] = now
+        self.get_logger().warning(text)
 
     # --- the worker ---
 
