@@ -51,16 +51,21 @@ class PairClient(Node):
 
     def __init__(self, name: str = "regor_pair_client"):
         super().__init__(name)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.target_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.source_pub = self.create_publisher(PointCloud2, "source_cloud", 10)
-        self.target_pub = self.create_publisher(PointCloud2, "target_cloud", latched)
+        self.target_pub = self.create_publisher(PointCloud2, "target_cloud", self.target_qos)
         self.poses: List[PoseStamped] = []
+        self.pose_arrivals: List[float] = []  # time.monotonic() when each pose arrived
         self.markers: List[MarkerArray] = []
         self.statuses: List[dict] = []
-        self.create_subscription(PoseStamped, "pose", self.poses.append, 10)
+        self.create_subscription(PoseStamped, "pose", self._on_pose, 10)
         self.create_subscription(MarkerArray, "correspondences", self.markers.append, 10)
         self.create_subscription(String, "status", lambda m: self.statuses.append(json.loads(m.data)), 10)
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        self.poses.append(msg)
+        self.pose_arrivals.append(time.monotonic())
 
     def header(self, frame: str) -> Header:
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame)
