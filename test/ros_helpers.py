@@ -47,7 +47,9 @@ def call(client, srv_type, name, request):
 
 
 def set_param(client, name, value):
-    if isinstance(value, bool):
+    if isinstance(value, list):
+        pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER_ARRAY, integer_array_value=value)
+    elif isinstance(value, bool):
         pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
     elif isinstance(value, int):
         pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)

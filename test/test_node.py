@@ -87,6 +87,7 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         assert ros.wait_for_node(TIMEOUT), node.output()
         src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
         ros.publish(target=xyz_to_cloud(tgt, ros.header("map")))
+        ros.spin_until(lambda: False, 2.0)  # the latched copy from earlier tests arrives too
         for seed in (25, 26):
             moved, _, truth, _ = moved_pair("3dmatch_redkitchen_5_6_ds", seed)
             seen = len(ros.poses)
