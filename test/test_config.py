@@ -54,6 +54,12 @@ def test_ambiguous_and_unknown_names_are_rejected():
         RegorConfig().replace({"voxel": 0.2})
 
 
+def test_subset_choice_is_checked():
+    assert RegorConfig().replace({"subset": "random"}).initial.subset == "random"
+    with pytest.raises(ConfigError, match="initial.subset"):
+        RegorConfig().replace({"subset": "sometimes"})
+
+
 def test_type_errors_are_reported_with_the_field():
     with pytest.raises(ConfigError, match="initial.k1"):
         RegorConfig().replace({"k1": "2.5"})
@@ -62,7 +68,7 @@ def test_type_errors_are_reported_with_the_field():
 def test_every_field_has_a_description_and_range():
     for name, value, field in RegorConfig().parameters():
         assert field.metadata["description"], name
-        if not isinstance(value, bool):
+        if not isinstance(value, (bool, str)):
             low, high = field.metadata["range"]
             assert low is not None and high is not None, name
 

@@ -48,3 +48,33 @@ def test_match_features_nearest_and_candidates_agree_with_a_full_sort():
 def test_feature_distance_of_identical_unit_vectors_is_near_zero():
     assert feature_distance(np.float32(1.0)) < 1e-2
     assert abs(feature_distance(np.float32(-1.0)) - 2.0) < 1e-3
+
+
+def test_mutual_flags_and_similarities_agree_with_the_full_matrix():
+    rng = np.random.default_rng(3)
+    fs, ft = unit_rows(rng, 5000), unit_rows(rng, 300)   # several row chunks
+    m = match_features(fs, ft, candidates=5, candidate_rows=np.zeros(0, np.int64))
+    sim = fs @ ft.T
+    np.testing.assert_allclose(m.similarity, sim.max(axis=1), rtol=1e-6)
+    np.testing.assert_array_equal(m.mutual, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))
+    assert 0 < m.mutual.sum() <= 300
+
+
+def test_best_subset_takes_mutual_matches_first():
+    from regor_ros.core.config import InitialConfig
+    from regor_ros.core.initial import consensus_subset
+    from regor_ros.core.matching import FeatureMatches
+    n = 1000
+    mutual = np.zeros(n, bool)
+    mutual[::10] = True
+    similarity = np.linspace(0, 1, n).astype(np.float32)
+    matches = FeatureMatches(np.arange(n), similarity, mutual, np.arange(0), np.zeros((0, 1), int),
+                             np.zeros((0, 1)))
+    best = consensus_subset(matches, InitialConfig(max_correspondences=300, subset="best"), None)
+    assert set(np.flatnonzero(mutual)) <= set(best)
+    assert similarity[np.setdiff1d(best, np.flatnonzero(mutual))].min() > 0.7
+    rng = np.random.default_rng(0)
+    random = consensus_subset(matches, InitialConfig(max_correspondences=300), rng)
+    assert len(random) == 300 and len(np.unique(random)) == 300
+    everything = consensus_subset(matches, InitialConfig(max_correspondences=0), rng)
+    np.testing.assert_array_equal(everything, np.arange(n))

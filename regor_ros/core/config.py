@@ -47,6 +47,8 @@ class InitialConfig:
     k1: int = _param(20, "size of the first-stage consensus set of each seed", 4, 1000)
     k2: int = _param(10, "size of the second-stage consensus set of each seed", 3, 1000)
     max_correspondences: int = _param(2500, "random subset size for the quadratic consensus steps (authors: 8000); 0 = all", 0, 100000)
+    subset: str = _param("random", "which correspondences fill max_correspondences: random (authors) or best "
+                         "(mutual nearest neighbours first, then by feature similarity; deviation)")
     power_iterations: int = _param(10, "power iterations for leading eigenvectors", 1, 100)
     candidates: int = _param(100, "feature-nearest target candidates per source point checked by FS-TCD (K)", 1, 1000)
     num_hypotheses: int = _param(50, "hypotheses with the most inliers that FS-TCD compares", 1, 1000)
@@ -96,6 +98,7 @@ class AcceptanceConfig:
 
 
 PRESETS = ("indoor", "outdoor", "object")
+SUBSET_CHOICES = ("random", "best")
 
 
 @dataclass
@@ -120,7 +123,7 @@ class RegorConfig:
                 features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5),
                 initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
                                       nms_radius=0.3, k1=40, k2=30, fs_tcd_threshold=0.1,
-                                      refine_threshold=1.2),
+                                      refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
                 acceptance=AcceptanceConfig(min_feature_inliers=20),
             )
@@ -178,6 +181,8 @@ class RegorConfig:
         if len(regen.stage_neighbors) != len(regen.stage_seeds):
             raise ConfigError("regeneration.stage_neighbors and regeneration.stage_seeds must have "
                               f"one entry per stage (got {len(regen.stage_neighbors)} and {len(regen.stage_seeds)})")
+        if self.initial.subset not in SUBSET_CHOICES:
+            raise ConfigError(f"initial.subset={self.initial.subset!r}: choose one of {', '.join(SUBSET_CHOICES)}")
         if self.initial.k2 > self.initial.k1:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
         if self.features.normal_radius < self.features.voxel_size:
@@ -202,6 +207,8 @@ def resolve_name(key: str, flat: Dict[str, Any]) -> str:
 def _coerce(name: str, value: Any, current: Any) -> Any:
     """Convert a value (possibly a string from a command line) to the type of the current one."""
     try:
+        if isinstance(current, str):
+            return str(value)
         if isinstance(current, bool):
             if isinstance(value, str):
                 if value.lower() in ("1", "true", "yes", "on"):

@@ -114,14 +114,24 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
     return int(agree.sum(axis=1).max()), vp, vq
 
 
+def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator) -> np.ndarray:
+    """The correspondences the quadratic consensus steps run on: all of them when they fit in
+    max_correspondences, else a random subset (the authors' choice), or with subset="best" the
+    mutual nearest neighbours first and then the most similar matches (deviation)."""
+    n_all = len(matches.target_index)
+    if not cfg.max_correspondences or n_all <= cfg.max_correspondences:
+        return np.arange(n_all)
+    if cfg.subset == "random":
+        return np.sort(rng.choice(n_all, cfg.max_correspondences, replace=False))
+    order = np.lexsort((-matches.similarity, ~matches.mutual))
+    return np.sort(order[:cfg.max_correspondences])
+
+
 def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                   matches: FeatureMatches, cfg: InitialConfig,
                   rng: np.random.Generator) -> InitialResult:
     """Run SC2-PCR++ on the correspondences (src[i], tgt[i]) and return T_m with its inliers."""
-    n_all = len(src)
-    subset = np.arange(n_all)
-    if cfg.max_correspondences and n_all > cfg.max_correspondences:
-        subset = np.sort(rng.choice(n_all, cfg.max_correspondences, replace=False))
+    subset = consensus_subset(matches, cfg, rng)
     sub_src, sub_tgt = src[subset], tgt[subset]
 
     hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg)

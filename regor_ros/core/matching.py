@@ -17,6 +17,8 @@ class FeatureMatches:
     """One-way nearest neighbour of every source keypoint, and its K most similar targets."""
 
     target_index: np.ndarray        # (N,) nearest target keypoint in feature space
+    similarity: np.ndarray          # (N,) its feature similarity (dot product)
+    mutual: np.ndarray              # (N,) the source keypoint is also its target's nearest
     candidate_rows: np.ndarray      # (R,) source keypoints that have candidate sets
     candidates: np.ndarray          # (R, K) their K most similar target keypoints (FS-TCD's set)
     candidate_distance: np.ndarray  # (R, K) and feature distances
@@ -39,11 +41,20 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray, can
     k = min(candidates, m)
     kth = m - k
     nearest = np.empty(n, dtype=np.int64)
+    best_sim = np.empty(n, dtype=np.float32)
+    column_best = np.full(m, -np.inf, dtype=np.float32)
+    column_arg = np.zeros(m, dtype=np.int64)
     cand = np.empty((len(candidate_rows), k), dtype=np.int64)
     cand_sim = np.empty((len(candidate_rows), k), dtype=np.float32)
     for start in range(0, n, ROW_CHUNK):
         sim = source_features[start:start + ROW_CHUNK] @ target_features.T
+        rows = np.arange(len(sim))
         nearest[start:start + len(sim)] = np.argmax(sim, axis=1)
+        best_sim[start:start + len(sim)] = sim[rows, nearest[start:start + len(sim)]]
+        chunk_arg = np.argmax(sim, axis=0)
+        chunk_best = sim[chunk_arg, np.arange(m)]
+        better = chunk_best > column_best
+        column_best[better], column_arg[better] = chunk_best[better], chunk_arg[better] + start
         lo, hi = np.searchsorted(candidate_rows, [start, start + len(sim)])
         if lo == hi:
             continue
@@ -56,7 +67,8 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray, can
         keep = rank < k
         cand[lo:hi] = c[keep].reshape(rows, k)
         cand_sim[lo:hi] = sim[r[keep], c[keep]].reshape(rows, k)
-    return FeatureMatches(nearest, candidate_rows, cand, feature_distance(cand_sim))
+    mutual = column_arg[nearest] == np.arange(n)
+    return FeatureMatches(nearest, best_sim, mutual, candidate_rows, cand, feature_distance(cand_sim))
 
 
 def _top_mask(similarity: np.ndarray, k: int, axis: int) -> np.ndarray:

@@ -95,38 +95,16 @@ def register(source: CloudInput, target: CloudInput,
     lap("matching")
 
     initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng)
-    seed_src, seed_tgt = init_src[initial.inliers], init_tgt[initial.inliers]
-    sizes = {"initial_matches": len(init_src), "initial_inliers": len(seed_src)}
+    sizes = {"initial_matches": len(init_src), "initial_inliers": int(initial.inliers.sum())}
     lap("initial")
 
-    regen = config.regeneration
-    if regen.presample and len(seed_src):
-        pick = rng.integers(0, len(seed_src), regen.presample)
-        seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
-    if len(seed_src):
-        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
-            seed_src, seed_tgt = regenerate(seed_src, seed_tgt, src_cloud, tgt_cloud, k, s, regen, rng)
-            sizes[f"stage{stage}"] = len(seed_src)
-    lap("regeneration")
-
-    est = config.estimation
-    refine = lambda T: point_refine(T, src_cloud.points, tgt_cloud.tree, est.inlier_threshold,  # noqa: E731
-                                    est.max_iterations)
-    selected = "regeneration"
-    if len(seed_src) >= 3:
-        refined = refine(weighted_kabsch(seed_src, seed_tgt))
-        if est.compare_initial_pose and not poses_close(
-                refined.transform, initial.transform, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
-            alternative = refine(initial.transform)
-            if len(alternative.source_index) > len(refined.source_index):
-                refined, selected = alternative, "initial"
-    else:
-        refined, selected = refine(initial.transform), "initial"
+    refined, selected = _regenerate_and_estimate(
+        initial.transform, initial.inliers, init_src, init_tgt, src_cloud, tgt_cloud, config, rng,
+        sizes, timings)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
     covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index])
-    lap("estimation")
 
     num_inliers = len(final_src)
     fitness = num_inliers / len(src_cloud)
@@ -143,6 +121,43 @@ def register(source: CloudInput, target: CloudInput,
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings)
+
+
+def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig):
+    est = config.estimation
+    return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations)
+
+
+def _regenerate_and_estimate(T_initial, seeds, init_src, init_tgt, source: PreparedCloud,
+                             target: PreparedCloud, config: RegorConfig, rng, sizes: Dict, timings: Dict):
+    """Regeneration stages from the initial matches ``seeds`` (a mask) that agree with the
+    initial pose, then the point-level estimator; keeps the initial pose instead when it refines
+    to more inliers (compare_initial_pose). Stage sizes and timings go into the dicts given."""
+    started = time.perf_counter()
+    seed_src, seed_tgt = init_src[seeds], init_tgt[seeds]
+    regen = config.regeneration
+    if regen.presample and len(seed_src):
+        pick = rng.integers(0, len(seed_src), regen.presample)
+        seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
+    if len(seed_src):
+        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
+            seed_src, seed_tgt = regenerate(seed_src, seed_tgt, source, target, k, s, regen, rng)
+            sizes[f"stage{stage}"] = len(seed_src)
+    timings["regeneration"] = time.perf_counter() - started
+
+    started = time.perf_counter()
+    est = config.estimation
+    if len(seed_src) < 3:
+        refined, selected = _refine(T_initial, source, target, config), "initial"
+    else:
+        refined, selected = _refine(weighted_kabsch(seed_src, seed_tgt), source, target, config), "regeneration"
+        if est.compare_initial_pose and not poses_close(
+                refined.transform, T_initial, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
+            alternative = _refine(T_initial, source, target, config)
+            if len(alternative.source_index) > len(refined.source_index):
+                refined, selected = alternative, "initial"
+    timings["estimation"] = time.perf_counter() - started
+    return refined, selected
 
 
 def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int,
