@@ -11,15 +11,27 @@ from conftest import PAIRS
 TWO = ["3dmatch_redkitchen_5_6_ds", "stanford_bunny_045_to_000"]
 
 
-@pytest.fixture
-def two_pairs(tmp_path):
-    folder = tmp_path / "pairs"
+def pair_folder(root, names):
+    folder = root / "pairs"
     folder.mkdir()
-    listing = [p for p in json.loads((PAIRS / "pairs.json").read_text()) if p["name"] in TWO]
+    listing = [p for p in json.loads((PAIRS / "pairs.json").read_text()) if p["name"] in names]
     (folder / "pairs.json").write_text(json.dumps(listing))
-    for name in TWO:
+    for name in names:
         (folder / name).symlink_to(PAIRS / name)
     return folder
+
+
+@pytest.fixture
+def two_pairs(tmp_path):
+    return pair_folder(tmp_path, TWO)
+
+
+def test_mismatched_mode_counts_accepted_poses_across_places(tmp_path, capsys):
+    folder = pair_folder(tmp_path, ["3dmatch_redkitchen_5_6_ds", "3dmatch_hotel_umd_8_15_ds"])
+    assert main([str(folder), "--mismatched", "--rotate", "2", "--out", str(tmp_path / "out")]) == 0
+    report = (tmp_path / "out" / "mismatched.md").read_text()
+    assert report.startswith("Scans of different places: 0 of 2 poses accepted")
+    assert "| 3dmatch_redkitchen_5_6_ds | 3dmatch_hotel_umd_8_15_ds | False |" in report
 
 
 def test_benchmark_command_writes_table_csv_and_plot(two_pairs, tmp_path, capsys):

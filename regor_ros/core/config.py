@@ -33,6 +33,8 @@ class FeatureConfig:
     normal_max_nn: int = _param(30, "max neighbours for normal estimation", 3, 1000)
     fpfh_radius: float = _param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
     fpfh_max_nn: int = _param(100, "max neighbours for the FPFH descriptor", 5, 1000)
+    remove_ground: bool = _param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
+                                 "its rings make unrelated scans look aligned at the same sensor position")
     min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
 
 
@@ -93,7 +95,7 @@ class AcceptanceConfig:
 
     min_inliers: int = _param(40, "fewest final inlier keypoints of an accepted pose", 0, 1000000)
     min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
-    min_feature_inliers: int = _param(50, "fewest initial feature matches within initial.inlier_threshold of "
+    min_feature_inliers: int = _param(60, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms", 0, 1000000)
 
 
@@ -120,12 +122,13 @@ class RegorConfig:
             return cls()
         if name == "outdoor":
             return cls(
-                features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5),
+                features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5,
+                                       remove_ground=True),
                 initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
                                       nms_radius=0.3, k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=20),
+                acceptance=AcceptanceConfig(min_feature_inliers=40),
             )
         if name == "object":
             s = 0.06  # object scale relative to indoor
@@ -136,6 +139,7 @@ class RegorConfig:
                                       refine_threshold=0.10 * s),
                 regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
                 estimation=EstimationConfig(inlier_threshold=0.10 * s),
+                acceptance=AcceptanceConfig(min_feature_inliers=50),
             )
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 

@@ -56,11 +56,26 @@ def clean_points(xyz, name: str = "cloud") -> np.ndarray:
     return arr[sane]
 
 
+GROUND_MIN_POINTS = 100
+GROUND_RANSAC_SEED = 0
+
+
+def remove_largest_plane(pcd: o3d.geometry.PointCloud, distance: float) -> o3d.geometry.PointCloud:
+    """Drop the points of the largest plane (the ground of a LiDAR scan). Its features are
+    ambiguous, and the rings a spinning sensor draws on it match between any two scans at the
+    same sensor-relative place, pulling the pose toward 'no motion'. Seeded for determinism."""
+    o3d.utility.random.seed(GROUND_RANSAC_SEED)
+    _, plane = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=1000)
+    return pcd.select_by_index(plane, invert=True)
+
+
 def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
     """Downsample, estimate normals, compute FPFH and L2-normalise the features."""
     points = clean_points(xyz, name)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down = pcd.voxel_down_sample(config.voxel_size)
+    if config.remove_ground and len(down.points) >= GROUND_MIN_POINTS:
+        down = remove_largest_plane(down, config.voxel_size)
     n = len(down.points)
     if n < config.min_points:
         raise RegistrationError(
