@@ -95,7 +95,7 @@ class AcceptanceConfig:
 
     min_inliers: int = _param(40, "fewest final inlier keypoints of an accepted pose", 0, 1000000)
     min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
-    min_feature_inliers: int = _param(60, "fewest initial feature matches within initial.inlier_threshold of "
+    min_feature_inliers: int = _param(70, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms", 0, 1000000)
 
 
@@ -128,7 +128,7 @@ class RegorConfig:
                                       nms_radius=0.3, k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=40),
+                acceptance=AcceptanceConfig(min_feature_inliers=50),
             )
         if name == "object":
             s = 0.06  # object scale relative to indoor
