@@ -3,12 +3,8 @@
 # pair to it (source moved by a random rigid motion), print the pose and its error.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
-set +u
-# shellcheck disable=SC1091
-source .venv/bin/activate && source install/setup.bash
-set -u
-export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_LOCALHOST_ONLY=1 ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-77}"
+source scripts/environment.sh
+export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-77}"
 lib=install/regor_ros/lib/regor_ros
 share=install/regor_ros/share/regor_ros
 
