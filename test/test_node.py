@@ -106,3 +106,16 @@ def test_invalid_parameter_file_value_stops_with_a_clear_message(install):
     assert node.proc.wait(timeout=TIMEOUT) != 0
     assert "voxel_size" in node.output()
     assert "Traceback" not in node.output()
+
+
+def test_colcon_installs_the_executable_configs_launch_file_and_demo(install):
+    share = install / "regor_ros" / "share" / "regor_ros"
+    assert (install / "regor_ros" / "lib" / "regor_ros" / "register_node").exists()
+    assert (install / "share" / "ament_index" / "resource_index" / "packages" / "regor_ros").exists() or \
+        (share.parent / "ament_index" / "resource_index" / "packages" / "regor_ros").exists()
+    for preset in ("indoor", "outdoor", "object"):
+        assert (share / "config" / f"{preset}.yaml").read_text().startswith("# Generated")
+    launch = share / "launch" / "register.launch.py"
+    compile(launch.read_text(), str(launch), "exec")  # launch_ros has no pip wheel: syntax only
+    assert {p.name for p in (share / "demo").iterdir()} == {"src.npy", "tgt.npy", "gt.txt"}
+    assert (share / "package.xml").exists()
