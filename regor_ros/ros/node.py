@@ -129,10 +129,10 @@ class RegisterNode(Node):
     def _bad_input(self, text: str) -> None:
         """Count and warn, at most once per WARN_THROTTLE_S for each kind of problem (the text
         with its numbers blanked), so a flood of one bad kind cannot hide another."""
-        self.stats["bad_inputs"] += 1
         kind = re.sub(r"[-+.\de]*\d[-+.\de]*", "#", text)
         now = time.monotonic()
         with self._lock:
+            self.stats["bad_inputs"] += 1
             if now - self._warned.get(kind, -WARN_THROTTLE_S) < WARN_THROTTLE_S:
                 return
             self._warned[kind] = now
