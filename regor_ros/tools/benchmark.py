@@ -256,14 +256,13 @@ def main(argv=None) -> int:
         parser.error(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
     if not (args.data / "pairs.json").is_file():
         parser.error(f"{args.data} has no pairs.json")
-    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
-    try:
-        presets = {k: RegorConfig.preset(k).replace(overrides) for k in ("indoor", "outdoor", "object")}
-    except ConfigError as exc:
-        parser.error(str(exc))
-
     seeds = args.rotate or [None]
     pairs = list(load_pairs(args.data, args.pairs))
+    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
+    try:  # overrides apply to the presets of the kinds present
+        presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p[1] for p in pairs}}
+    except ConfigError as exc:
+        parser.error(str(exc))
     if args.mismatched:
         report = mismatched_report(pairs, presets, seeds)
         args.out.mkdir(parents=True, exist_ok=True)
