@@ -118,3 +118,11 @@ def test_a_million_point_cloud_is_downsampled_and_registered():
     print(f"\n1,000,000-point source registered in {result.timings['total']:.2f} s "
           f"(features {result.timings['features']:.2f} s)")
     assert is_success(result.transform, T_gt, kind) and result.accepted
+
+
+def test_the_authors_quirks_can_be_reproduced(kitchen_pair):
+    src, tgt, T_gt, kind = kitchen_pair
+    cfg = RegorConfig().replace({"reproduce_fs_tcd_quirk": True, "reproduce_ctc_padding_bug": True,
+                                 "subset": "random", "dedupe_hypotheses": False})
+    result = register(src, tgt, cfg)
+    assert is_success(result.transform, T_gt, kind)
