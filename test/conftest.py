@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+
+from regor_ros.core.metrics import random_rigid_motion
 
 # DDS stays on loopback, in a domain of this test run's own
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -26,11 +27,7 @@ def load_pair(name):
 
 
 def random_motion(seed, max_translation=2.0):
-    rng = np.random.default_rng(seed)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-    T[:3, 3] = rng.uniform(-max_translation, max_translation, 3)
-    return T
+    return random_rigid_motion(seed, max_translation)
 
 
 def moved_pair(name, seed):

@@ -1,5 +1,4 @@
 import numpy as np
-from scipy.spatial import cKDTree
 
 from regor_ros.core.estimate import (pose_covariance, point_refine, post_refine, transform_points,
                                      weighted_kabsch)

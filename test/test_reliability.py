@@ -3,7 +3,6 @@ publishes a wrong pose with confidence, and stops cleanly. Real DDS on loopback,
 import time
 
 import numpy as np
-import pytest
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 

@@ -4,11 +4,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 # (max rotation error in degrees, max translation error in metres) counted as a success
 SUCCESS_THRESHOLDS = {"indoor": (15.0, 0.30), "object": (15.0, 0.30), "outdoor": (5.0, 0.60)}
 # ground-truth residual below which a correspondence is correct [m]
 INLIER_THRESHOLDS = {"indoor": 0.10, "object": 0.10 * 0.06, "outdoor": 0.60}
+
+
+def random_rigid_motion(seed, max_translation: float = 1.0) -> np.ndarray:
+    """A uniformly random rotation and a translation within +-max_translation per axis, drawn
+    from ``seed`` (an int or a sequence of ints): moving a source by it makes a test global."""
+    rng = np.random.default_rng(seed)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    T[:3, 3] = rng.uniform(-max_translation, max_translation, 3)
+    return T
 
 
 def rotation_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:

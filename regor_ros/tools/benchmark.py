@@ -22,26 +22,17 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core import RegorConfig, prepare_cloud, register
 from ..core.config import ConfigError
 from ..core.matching import match_features
-from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, rotation_error_deg,
-                            translation_error)
+from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_rigid_motion,
+                            rotation_error_deg, translation_error)
 from .peers import DESCRIPTIONS, METHODS
 
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total", "inliers_final",
               "final_count", "inliers_initial", "initial_count", "error"]
-
-
-def random_motion(seed: int, pair_index: int) -> np.ndarray:
-    rng = np.random.default_rng([seed, pair_index])
-    T = np.eye(4)
-    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-    T[:3, 3] = rng.uniform(-1.0, 1.0, 3)
-    return T
 
 
 def load_pairs(folder: Path, name_filter: Optional[str]):
@@ -101,7 +92,7 @@ def mismatched_report(pairs, presets: Dict, seeds) -> str:
     for seed in seeds:
         for i, (name_a, kind, src, _, _) in enumerate(pairs):
             if seed is not None:
-                M = random_motion(seed, i)
+                M = random_rigid_motion([seed, i])
                 src = src @ M[:3, :3].T + M[:3, 3]
             for name_b, kind_b, _, tgt, _ in pairs:
                 if kind_b != kind or scene(name_b) == scene(name_a):
@@ -276,7 +267,7 @@ def main(argv=None) -> int:
     for seed in seeds:
         for index, (name, kind, src, tgt, T_gt) in enumerate(pairs):
             if seed is not None:
-                M = random_motion(seed, index)
+                M = random_rigid_motion([seed, index])
                 src, T_gt = src @ M[:3, :3].T + M[:3, 3], T_gt @ np.linalg.inv(M)
             pair_rows = evaluate_pair(name, kind, src, tgt, T_gt, methods, presets[kind], seed)
             rows += pair_rows

@@ -23,7 +23,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from ..core.metrics import rotation_error_deg, translation_error
+from ..core.metrics import random_rigid_motion, rotation_error_deg, translation_error
 from ..ros.pointcloud import xyz_to_cloud
 
 DISCOVERY_SETTLE_S = 1.0
@@ -35,14 +35,6 @@ def pose_to_matrix(msg: PoseStamped) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
     T[:3, 3] = [p.x, p.y, p.z]
-    return T
-
-
-def random_motion(seed: int, max_translation: float = 1.0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
-    T[:3, 3] = rng.uniform(-max_translation, max_translation, 3)
     return T
 
 
@@ -121,7 +113,7 @@ def main(argv=None) -> int:
     src, tgt = np.load(args.source), np.load(args.target)
     T_gt = np.loadtxt(args.ground_truth) if args.ground_truth else None
     if args.rotate is not None:
-        M = random_motion(args.rotate)
+        M = random_rigid_motion(args.rotate)
         src = src @ M[:3, :3].T + M[:3, 3]
         T_gt = T_gt @ np.linalg.inv(M) if T_gt is not None else None
 
