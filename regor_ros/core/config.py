@@ -48,7 +48,7 @@ class InitialConfig:
     seed_ratio: float = _param(0.2, "fraction of correspondences used as seeds", 0.001, 1.0)
     k1: int = _param(20, "size of the first-stage consensus set of each seed", 4, 1000)
     k2: int = _param(10, "size of the second-stage consensus set of each seed", 3, 1000)
-    max_correspondences: int = _param(2500, "random subset size for the quadratic consensus steps (authors: 8000); 0 = all", 0, 100000)
+    max_correspondences: int = _param(2500, "correspondences the quadratic consensus steps run on, chosen by initial.subset (authors: 8000 random); 0 = all", 0, 100000)
     subset: str = _param("random", "which correspondences fill max_correspondences: random (authors) or best "
                          "(mutual nearest neighbours first, then by feature similarity; deviation)")
     power_iterations: int = _param(10, "power iterations for leading eigenvectors", 1, 100)
@@ -57,7 +57,6 @@ class InitialConfig:
     fs_tcd_threshold: float = _param(0.05, "length difference below which two verified matches agree in FS-TCD [m]", 1e-5, 100.0)
     refine_threshold: float = _param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
     dedupe_hypotheses: bool = _param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
-    fs_tcd_ball_neighbors: int = _param(32, "target points checked per source point in FS-TCD's ball query", 1, 1000)
     fs_tcd_points: int = _param(2500, "random subset of source keypoints verified by FS-TCD (deviation, for large clouds); 0 = all", 0, 1000000)
     fs_tcd_rows: int = _param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all (deviation)", 0, 100000)
     reproduce_fs_tcd_quirk: bool = _param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the previous hypothesis's matches)")

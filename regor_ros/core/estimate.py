@@ -7,6 +7,8 @@ from typing import Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .metrics import rotation_error_deg, translation_error
+
 
 def to_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     """Stack (..., 3, 3) rotations and (..., 3) translations into (..., 4, 4) transforms."""
@@ -49,9 +51,7 @@ def weighted_kabsch(source: np.ndarray, target: np.ndarray,
 
 def poses_close(A: np.ndarray, B: np.ndarray, angle_deg: float, translation: float) -> bool:
     """True when two transforms differ by less than ``angle_deg`` and ``translation``."""
-    cos = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1.0) / 2.0
-    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    return bool(angle < angle_deg and np.linalg.norm(A[:3, 3] - B[:3, 3]) < translation)
+    return rotation_error_deg(A, B) < angle_deg and translation_error(A, B) < translation
 
 
 def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:

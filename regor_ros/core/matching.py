@@ -48,9 +48,9 @@ def match_features(source_features: np.ndarray, target_features: np.ndarray, can
     cand_sim = np.empty((len(candidate_rows), k), dtype=np.float32)
     for start in range(0, n, ROW_CHUNK):
         sim = source_features[start:start + ROW_CHUNK] @ target_features.T
-        rows = np.arange(len(sim))
-        nearest[start:start + len(sim)] = np.argmax(sim, axis=1)
-        best_sim[start:start + len(sim)] = sim[rows, nearest[start:start + len(sim)]]
+        chunk_nearest = np.argmax(sim, axis=1)
+        nearest[start:start + len(sim)] = chunk_nearest
+        best_sim[start:start + len(sim)] = sim[np.arange(len(sim)), chunk_nearest]
         chunk_arg = np.argmax(sim, axis=0)
         chunk_best = sim[chunk_arg, np.arange(m)]
         better = chunk_best > column_best

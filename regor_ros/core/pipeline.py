@@ -8,7 +8,8 @@ from typing import Dict, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import UNCONSTRAINED_VARIANCE, point_refine, pose_covariance, poses_close, transform_points, weighted_kabsch
+from .estimate import (UNCONSTRAINED_VARIANCE, point_refine, pose_covariance, poses_close,
+                       transform_points, weighted_kabsch)
 from .features import PreparedCloud, RegistrationError, prepare
 from .initial import initial_stage
 from .matching import match_features
@@ -44,6 +45,17 @@ class RegistrationResult:
     selected: str = "regeneration"  # which pose the estimator kept: "regeneration" or "initial"
     stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
     timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
+
+    def summary(self) -> Dict:
+        """The verdict and quality figures as plain values, for logs, status messages and JSON."""
+        return {
+            "accepted": self.accepted, "reason": self.reason,
+            "num_inliers": self.num_inliers, "fitness": self.fitness,
+            "inlier_rmse": self.inlier_rmse, "feature_inliers": self.num_feature_inliers,
+            "source_keypoints": self.num_source_keypoints,
+            "target_keypoints": self.num_target_keypoints,
+            "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
+        }
 
 
 def prepare_cloud(points, config: RegorConfig, name: str = "cloud") -> PreparedCloud:
@@ -98,13 +110,23 @@ def register(source: CloudInput, target: CloudInput,
     sizes = {"initial_matches": len(init_src), "initial_inliers": int(initial.inliers.sum())}
     lap("initial")
 
-    refined, selected = _regenerate_and_estimate(
-        initial.transform, initial.inliers, init_src, init_tgt, src_cloud, tgt_cloud, config, rng,
-        sizes, timings)
+    seed_src, seed_tgt = init_src[initial.inliers], init_tgt[initial.inliers]
+    regen = config.regeneration
+    if regen.presample and len(seed_src):
+        pick = rng.integers(0, len(seed_src), regen.presample)
+        seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
+    if len(seed_src):
+        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
+            seed_src, seed_tgt = regenerate(seed_src, seed_tgt, src_cloud, tgt_cloud, k, s, regen, rng)
+            sizes[f"stage{stage}"] = len(seed_src)
+    lap("regeneration")
+
+    refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
     covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index])
+    lap("estimation")
 
     num_inliers = len(final_src)
     fitness = num_inliers / len(src_cloud)
@@ -128,36 +150,20 @@ def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config:
     return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations)
 
 
-def _regenerate_and_estimate(T_initial, seeds, init_src, init_tgt, source: PreparedCloud,
-                             target: PreparedCloud, config: RegorConfig, rng, sizes: Dict, timings: Dict):
-    """Regeneration stages from the initial matches ``seeds`` (a mask) that agree with the
-    initial pose, then the point-level estimator; keeps the initial pose instead when it refines
-    to more inliers (compare_initial_pose). Stage sizes and timings go into the dicts given."""
-    started = time.perf_counter()
-    seed_src, seed_tgt = init_src[seeds], init_tgt[seeds]
-    regen = config.regeneration
-    if regen.presample and len(seed_src):
-        pick = rng.integers(0, len(seed_src), regen.presample)
-        seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
-    if len(seed_src):
-        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
-            seed_src, seed_tgt = regenerate(seed_src, seed_tgt, source, target, k, s, regen, rng)
-            sizes[f"stage{stage}"] = len(seed_src)
-    timings["regeneration"] = time.perf_counter() - started
-
-    started = time.perf_counter()
-    est = config.estimation
+def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,
+              config: RegorConfig):
+    """Kabsch on the regenerated correspondences, then the point-level refinement; keeps the
+    initial pose instead when it refines to more inliers (compare_initial_pose)."""
     if len(seed_src) < 3:
-        refined, selected = _refine(T_initial, source, target, config), "initial"
-    else:
-        refined, selected = _refine(weighted_kabsch(seed_src, seed_tgt), source, target, config), "regeneration"
-        if est.compare_initial_pose and not poses_close(
-                refined.transform, T_initial, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
-            alternative = _refine(T_initial, source, target, config)
-            if len(alternative.source_index) > len(refined.source_index):
-                refined, selected = alternative, "initial"
-    timings["estimation"] = time.perf_counter() - started
-    return refined, selected
+        return _refine(T_initial, source, target, config), "initial"
+    refined = _refine(weighted_kabsch(seed_src, seed_tgt), source, target, config)
+    est = config.estimation
+    if est.compare_initial_pose and not poses_close(
+            refined.transform, T_initial, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
+        alternative = _refine(T_initial, source, target, config)
+        if len(alternative.source_index) > len(refined.source_index):
+            return alternative, "initial"
+    return refined, "regeneration"
 
 
 def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int,

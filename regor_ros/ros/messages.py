@@ -71,15 +71,4 @@ def correspondence_markers(result: RegistrationResult, header: Header, max_lines
 
 def status_message(result: RegistrationResult, extra: dict) -> String:
     """Quality figures, stage sizes and timings as JSON, for logs and dashboards."""
-    report = {
-        "accepted": result.accepted, "reason": result.reason,
-        "num_inliers": result.num_inliers, "fitness": round(result.fitness, 4),
-        "inlier_rmse": round(result.inlier_rmse, 5),
-        "feature_inliers": result.num_feature_inliers,
-        "source_keypoints": result.num_source_keypoints,
-        "target_keypoints": result.num_target_keypoints,
-        "stage_sizes": result.stage_sizes, "selected": result.selected,
-        "timings": {k: round(v, 4) for k, v in result.timings.items()},
-    }
-    report.update(extra)
-    return String(data=json.dumps(report))
+    return String(data=json.dumps({**result.summary(), **extra}))

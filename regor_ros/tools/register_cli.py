@@ -29,15 +29,7 @@ def parse_overrides(items):
 
 
 def report(result, ground_truth=None) -> dict:
-    out = {
-        "transform": result.transform.tolist(),
-        "accepted": result.accepted, "reason": result.reason,
-        "num_inliers": result.num_inliers, "fitness": result.fitness,
-        "inlier_rmse": result.inlier_rmse, "num_feature_inliers": result.num_feature_inliers,
-        "source_keypoints": result.num_source_keypoints,
-        "target_keypoints": result.num_target_keypoints,
-        "stage_sizes": result.stage_sizes, "timings": result.timings,
-    }
+    out = {"transform": result.transform.tolist(), **result.summary()}
     if ground_truth is not None:
         out["rotation_error_deg"] = rotation_error_deg(result.transform, ground_truth)
         out["translation_error_m"] = translation_error(result.transform, ground_truth)
@@ -50,7 +42,7 @@ def print_text(rep: dict) -> None:
     print(np.array(rep["transform"]))
     print(f"inliers: {rep['num_inliers']} of {rep['source_keypoints']} source keypoints "
           f"(fitness {rep['fitness']:.3f}), RMSE {rep['inlier_rmse']:.4f} m, "
-          f"{rep['num_feature_inliers']} feature matches agree")
+          f"{rep['feature_inliers']} feature matches agree")
     print("stages: " + ", ".join(f"{k} {v}" for k, v in rep["stage_sizes"].items()))
     print("timings [s]: " + ", ".join(f"{k} {v:.3f}" for k, v in rep["timings"].items()))
     if "rotation_error_deg" in rep:
