@@ -1,18 +1,25 @@
 import numpy as np
-import open3d as o3d
 
 from regor_ros.core import RegorConfig, prepare_cloud
-from regor_ros.core.features import remove_largest_plane
+from regor_ros.core.features import largest_plane
+
+from conftest import moved_pair
 
 
-def test_largest_plane_is_removed_and_the_rest_kept():
+def test_largest_plane_finds_the_ground_and_nothing_else():
     rng = np.random.default_rng(0)
     ground = np.c_[rng.uniform(-10, 10, (5000, 2)), rng.normal(scale=0.01, size=5000)]
     box = rng.uniform([1, 1, 0.5], [3, 4, 3], (800, 3))
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.r_[ground, box]))
-    kept = np.asarray(remove_largest_plane(pcd, 0.1).points)
-    assert len(kept) == 800
-    assert kept[:, 2].min() > 0.4
+    mask = largest_plane(np.r_[ground, box], 0.1)
+    assert mask[:5000].all() and not mask[5000:].any()
+
+
+def test_ground_removal_is_repeatable():
+    src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
+    cfg = RegorConfig.preset("outdoor")
+    first, second = prepare_cloud(src, cfg), prepare_cloud(src, cfg)
+    assert len(first) < len(prepare_cloud(src, cfg.replace({"remove_ground": False})))
+    np.testing.assert_array_equal(first.points, second.points)
 
 
 def test_prepared_cloud_has_unit_features_and_normals(kitchen_pair):

@@ -58,15 +58,28 @@ def clean_points(xyz, name: str = "cloud") -> np.ndarray:
 
 GROUND_MIN_POINTS = 100
 GROUND_RANSAC_SEED = 0
+GROUND_RANSAC_ITERATIONS = 300
+GROUND_RANSAC_SAMPLE = 2000  # points that score each candidate plane
 
 
-def remove_largest_plane(pcd: o3d.geometry.PointCloud, distance: float) -> o3d.geometry.PointCloud:
-    """Drop the points of the largest plane (the ground of a LiDAR scan). Its features are
-    ambiguous, and the rings a spinning sensor draws on it match between any two scans at the
-    same sensor-relative place, pulling the pose toward 'no motion'. Seeded for determinism."""
-    o3d.utility.random.seed(GROUND_RANSAC_SEED)
-    _, plane = pcd.segment_plane(distance_threshold=distance, ransac_n=3, num_iterations=1000)
-    return pcd.select_by_index(plane, invert=True)
+def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
+    """Mask of the points within ``distance`` of the largest plane (the ground of a LiDAR scan).
+
+    Its features are ambiguous, and the rings a spinning sensor draws on it match between any
+    two scans at the same sensor-relative place, pulling the pose toward 'no motion'. A seeded
+    numpy RANSAC: open3d's segment_plane is not repeatable across runs even when seeded.
+    """
+    rng = np.random.default_rng(GROUND_RANSAC_SEED)
+    triples = points[rng.integers(0, len(points), (GROUND_RANSAC_ITERATIONS, 3))]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    valid = length > 1e-12
+    normals = normals[valid] / length[valid, None]
+    offsets = -(normals * triples[valid, 0]).sum(axis=1)
+    sample = points[rng.choice(len(points), min(GROUND_RANSAC_SAMPLE, len(points)), replace=False)]
+    support = (np.abs(sample @ normals.T + offsets) < distance).sum(axis=0)
+    best = int(np.argmax(support))
+    return np.abs(points @ normals[best] + offsets[best]) < distance
 
 
 def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
@@ -75,7 +88,8 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down = pcd.voxel_down_sample(config.voxel_size)
     if config.remove_ground and len(down.points) >= GROUND_MIN_POINTS:
-        down = remove_largest_plane(down, config.voxel_size)
+        ground = largest_plane(np.asarray(down.points), config.voxel_size)
+        down = down.select_by_index(np.flatnonzero(ground).tolist(), invert=True)
     n = len(down.points)
     if n < config.min_points:
         raise RegistrationError(

@@ -36,12 +36,15 @@ CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation
 
 
 def load_pairs(folder: Path, name_filter: Optional[str]):
+    """(index in pairs.json, name, kind, source, target, T_target_source) of each selected pair;
+    the index seeds the pair's random motion, so a filtered run moves a pair as a full run does."""
     listing = json.loads((folder / "pairs.json").read_text())
-    for entry in listing:
+    for index, entry in enumerate(listing):
         if name_filter and name_filter not in entry["name"]:
             continue
         d = folder / entry["name"]
-        yield entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"), np.loadtxt(d / "gt.txt")
+        yield (index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
+               np.loadtxt(d / "gt.txt"))
 
 
 def evaluate_pair(name, kind, src, tgt, T_gt, methods, config: RegorConfig, seed) -> List[dict]:
@@ -90,11 +93,11 @@ def mismatched_report(pairs, presets: Dict, seeds) -> str:
     lines = ["| source | target | accepted | reason |", "|---|---|---|---|"]
     accepted = total = 0
     for seed in seeds:
-        for i, (name_a, kind, src, _, _) in enumerate(pairs):
+        for i, name_a, kind, src, _, _ in pairs:
             if seed is not None:
                 M = random_rigid_motion([seed, i])
                 src = src @ M[:3, :3].T + M[:3, 3]
-            for name_b, kind_b, _, tgt, _ in pairs:
+            for _, name_b, kind_b, _, tgt, _ in pairs:
                 if kind_b != kind or scene(name_b) == scene(name_a):
                     continue
                 result = register(src, tgt, presets[kind].replace({"seed": seed or 0}))
@@ -251,7 +254,7 @@ def main(argv=None) -> int:
     pairs = list(load_pairs(args.data, args.pairs))
     overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
     try:  # overrides apply to the presets of the kinds present
-        presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p[1] for p in pairs}}
+        presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p[2] for p in pairs}}
     except ConfigError as exc:
         parser.error(str(exc))
     if args.mismatched:
@@ -265,7 +268,7 @@ def main(argv=None) -> int:
     total = len(pairs) * len(seeds)
     done = 0
     for seed in seeds:
-        for index, (name, kind, src, tgt, T_gt) in enumerate(pairs):
+        for index, name, kind, src, tgt, T_gt in pairs:
             if seed is not None:
                 M = random_rigid_motion([seed, index])
                 src, T_gt = src @ M[:3, :3].T + M[:3, 3], T_gt @ np.linalg.inv(M)
