@@ -58,8 +58,8 @@ def clean_points(xyz, name: str = "cloud") -> np.ndarray:
 
 GROUND_MIN_POINTS = 100
 GROUND_RANSAC_SEED = 0
-GROUND_RANSAC_ITERATIONS = 300
-GROUND_RANSAC_SAMPLE = 2000  # points that score each candidate plane
+GROUND_RANSAC_ITERATIONS = 1000
+GROUND_RANSAC_SAMPLE = 4000  # points that score each candidate plane
 
 
 def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
@@ -79,7 +79,11 @@ def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
     sample = points[rng.choice(len(points), min(GROUND_RANSAC_SAMPLE, len(points)), replace=False)]
     support = (np.abs(sample @ normals.T + offsets) < distance).sum(axis=0)
     best = int(np.argmax(support))
-    return np.abs(points @ normals[best] + offsets[best]) < distance
+    inliers = np.abs(points @ normals[best] + offsets[best]) < distance
+    # least-squares refit on the inliers: the plane through their centroid, normal of least spread
+    centroid = points[inliers].mean(axis=0)
+    normal = np.linalg.svd(points[inliers] - centroid, full_matrices=False)[2][2]
+    return np.abs((points - centroid) @ normal) < distance
 
 
 def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
