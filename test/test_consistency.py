@@ -37,6 +37,9 @@ def test_spectral_confidence_ranks_inliers_first():
 
 
 def test_top_k_stable_matches_a_stable_descending_sort():
-    scores = np.random.default_rng(1).integers(0, 4, size=(40, 25)).astype(np.float32)
-    np.testing.assert_array_equal(top_k_stable(scores, 6),
-                                  np.argsort(-scores, axis=1, kind="stable")[:, :6])
+    rng = np.random.default_rng(1)
+    small = rng.integers(0, 4, size=(40, 25)).astype(np.float32)        # float32 keys
+    large = rng.integers(0, 3, size=(5, 300)) * 100_000.0                 # beyond float32: float64
+    for scores in (small, large):
+        np.testing.assert_array_equal(top_k_stable(scores, 6),
+                                      np.argsort(-scores, axis=1, kind="stable")[:, :6])

@@ -123,6 +123,7 @@ def test_a_million_point_cloud_is_downsampled_and_registered():
 def test_the_authors_quirks_can_be_reproduced(kitchen_pair):
     src, tgt, T_gt, kind = kitchen_pair
     cfg = RegorConfig().replace({"reproduce_fs_tcd_quirk": True, "reproduce_ctc_padding_bug": True,
-                                 "subset": "random", "dedupe_hypotheses": False})
+                                 "subset": "random", "dedupe_hypotheses": False,
+                                 "ranking": "inliers", "seed_ratio": 0.2, "nms_radius": 0.1})
     result = register(src, tgt, cfg)
     assert is_success(result.transform, T_gt, kind)

@@ -44,8 +44,8 @@ class InitialConfig:
 
     inlier_threshold: float = _param(0.10, "residual below which a correspondence is an inlier of a hypothesis (tau) [m]", 1e-5, 100.0)
     compatibility_threshold: float = _param(0.10, "length difference scale of pairwise compatibility (d_thre) [m]", 1e-5, 100.0)
-    nms_radius: float = _param(0.10, "radius of non-maximum suppression among seeds, in the source cloud [m]", 0.0, 100.0)
-    seed_ratio: float = _param(0.2, "fraction of correspondences used as seeds", 0.001, 1.0)
+    nms_radius: float = _param(0.0, "radius of non-maximum suppression among seeds, in the source cloud (authors: 0.1 indoor, 0.3 outdoor) [m]", 0.0, 100.0)
+    seed_ratio: float = _param(0.5, "fraction of correspondences used as seeds, by spectral confidence (authors: 0.2)", 0.001, 1.0)
     k1: int = _param(20, "size of the first-stage consensus set of each seed", 4, 1000)
     k2: int = _param(10, "size of the second-stage consensus set of each seed", 3, 1000)
     max_correspondences: int = _param(2500, "correspondences the quadratic consensus steps run on, chosen by initial.subset (authors: 8000 random); 0 = all", 0, 100000)
@@ -54,6 +54,9 @@ class InitialConfig:
     power_iterations: int = _param(10, "power iterations for leading eigenvectors", 1, 100)
     candidates: int = _param(100, "feature-nearest target candidates per source point checked by FS-TCD (K)", 1, 1000)
     num_hypotheses: int = _param(50, "hypotheses with the most inliers that FS-TCD compares", 1, 1000)
+    ranking: str = _param("candidates", "which hypotheses FS-TCD compares: the num_hypotheses with the most inliers in the "
+                          "consensus subset (inliers, authors) or with the most source keypoints landing on one of "
+                          "their K feature candidates (candidates, deviation: finds correct poses at low overlap)")
     fs_tcd_threshold: float = _param(0.05, "length difference below which two verified matches agree in FS-TCD [m]", 1e-5, 100.0)
     refine_threshold: float = _param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
     dedupe_hypotheses: bool = _param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
@@ -100,6 +103,7 @@ class AcceptanceConfig:
 
 PRESETS = ("indoor", "outdoor", "object")
 SUBSET_CHOICES = ("random", "best")
+RANKING_CHOICES = ("inliers", "candidates")
 
 
 @dataclass
@@ -124,7 +128,7 @@ class RegorConfig:
                 features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5,
                                        remove_ground=True),
                 initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
-                                      nms_radius=0.3, k1=40, k2=30, fs_tcd_threshold=0.1,
+                                      k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
                 acceptance=AcceptanceConfig(min_feature_inliers=50),
@@ -134,7 +138,7 @@ class RegorConfig:
             return cls(
                 features=FeatureConfig(voxel_size=0.05 * s, normal_radius=0.10 * s, fpfh_radius=0.25 * s),
                 initial=InitialConfig(inlier_threshold=0.10 * s, compatibility_threshold=0.10 * s,
-                                      nms_radius=0.10 * s, fs_tcd_threshold=0.05 * s,
+                                      fs_tcd_threshold=0.05 * s,
                                       refine_threshold=0.10 * s),
                 regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
                 estimation=EstimationConfig(inlier_threshold=0.10 * s),
@@ -186,6 +190,8 @@ class RegorConfig:
                               f"one entry per stage (got {len(regen.stage_neighbors)} and {len(regen.stage_seeds)})")
         if self.initial.subset not in SUBSET_CHOICES:
             raise ConfigError(f"initial.subset={self.initial.subset!r}: choose one of {', '.join(SUBSET_CHOICES)}")
+        if self.initial.ranking not in RANKING_CHOICES:
+            raise ConfigError(f"initial.ranking={self.initial.ranking!r}: choose one of {', '.join(RANKING_CHOICES)}")
         if self.initial.k2 > self.initial.k1:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
         if self.features.normal_radius < self.features.voxel_size:

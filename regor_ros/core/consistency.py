@@ -50,7 +50,11 @@ def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:
     k = min(k, n)
     if k <= 0:
         return np.zeros(counts.shape[:-1] + (0,), dtype=np.int64)
-    key = np.rint(counts).astype(np.float64) * n + (n - 1 - np.arange(n))
+    counts = np.rint(counts)
+    # the key is exact in float32 (partitions twice as fast) below 2**24
+    exact = (np.abs(counts).max() + 1) * n < 2 ** 24
+    dtype = np.float32 if exact else np.float64
+    key = counts.astype(dtype) * dtype(n) + (n - 1 - np.arange(n, dtype=dtype))
     top = np.argpartition(-key, k - 1, axis=-1)[..., :k]
     order = np.argsort(-np.take_along_axis(key, top, axis=-1), axis=-1)
     return np.take_along_axis(top, order, axis=-1)

@@ -1,7 +1,7 @@
 """SC2-PCR++ initial stage (SPEC section 2): from feature matches to a first pose and its inliers.
 
 Seeds with high spectral confidence grow second-order consensus sets; each gives a hypothesis,
-the best by inlier count are compared by FS-TCD (how many feature-verified matches agree in
+the best by inlier count (or by candidate support) are compared by FS-TCD (how many feature-verified matches agree in
 length with the best of them), and the winner is post-refined. Its inliers seed regeneration.
 """
 from __future__ import annotations
@@ -20,6 +20,8 @@ from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
+SUPPORT_ROWS = 256   # source keypoints that rank hypotheses by candidate support
+SUPPORT_BATCH = 128  # hypotheses per vectorised batch (memory: batch x rows x K floats)
 
 
 @dataclass
@@ -87,6 +89,23 @@ def inlier_counts(transforms: np.ndarray, src: np.ndarray, tgt: np.ndarray,
     return (sq < threshold ** 2).sum(axis=0)
 
 
+def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
+                      candidate_points: np.ndarray, threshold: float) -> np.ndarray:
+    """For each pose, how many of SUPPORT_ROWS source keypoints land within ``threshold`` of one
+    of their K feature candidates: FS-TCD's verification step alone, cheap enough for every
+    hypothesis. At low overlap the inlier count on a few thousand matches ranks the rare
+    correct pose below the crowd; the candidates' fuller feature evidence does not."""
+    rows = np.unique(np.linspace(0, len(source_points) - 1, SUPPORT_ROWS).astype(np.int64))
+    points, planes = source_points[rows], candidate_points[:, rows]
+    support = np.empty(len(transforms), dtype=np.int64)
+    for start in range(0, len(transforms), SUPPORT_BATCH):
+        T = transforms[start:start + SUPPORT_BATCH]
+        moved = (np.einsum("bij,rj->bri", T[:, :3, :3], points) + T[:, None, :3, 3]).astype(np.float32)
+        e2 = sum((planes[c] - moved[:, :, c, None]) ** 2 for c in range(3))     # (B, R, K)
+        support[start:start + len(T)] = (e2.min(axis=2) <= threshold ** 2).sum(axis=1)
+    return support
+
+
 def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
                    candidate_distance: np.ndarray, cfg: InitialConfig,
                    rng: np.random.Generator):
@@ -137,7 +156,6 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg)
     counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
     T_ic = hypotheses[int(np.argmax(counts))]
-    ranked = top_k_stable(counts, cfg.num_hypotheses)
 
     # FS-TCD works on the candidates' x, y, z planes, relative to the target centroid (float32)
     origin = target.points.mean(axis=0)
@@ -145,6 +163,11 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
         np.moveaxis(target.points[matches.candidates] - origin, 2, 0), dtype=np.float32)
     shift = np.eye(4)
     shift[:3, 3] = -origin
+    candidate_sources = source.points[matches.candidate_rows]
+    if cfg.ranking == "candidates":
+        counts = candidate_support(shift @ hypotheses, candidate_sources, candidate_points,
+                                   cfg.inlier_threshold)
+    ranked = top_k_stable(counts, cfg.num_hypotheses)
     best_fitness, T_fs = -1, T_ic
     kept: list = []
     refine_src, refine_tgt = src, tgt
@@ -155,7 +178,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
             continue
         kept.append(T)
         fitness, verified_src, verified_tgt = fs_tcd_fitness(
-            shift @ T, source.points[matches.candidate_rows], candidate_points,
+            shift @ T, candidate_sources, candidate_points,
             matches.candidate_distance, cfg, rng)
         verified_tgt = verified_tgt + origin
         if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:

@@ -11,7 +11,7 @@ from typing import Dict, Tuple
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from ..core.config import PRESETS, SUBSET_CHOICES, ConfigError, RegorConfig, _param
+from ..core.config import PRESETS, RANKING_CHOICES, SUBSET_CHOICES, ConfigError, RegorConfig, _param
 
 QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
 MODE_CHOICES = ("pairs", "map")
@@ -38,7 +38,8 @@ class NodeSettings:
 
 
 CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
-           "preset": PRESETS, "initial.subset": SUBSET_CHOICES}
+           "preset": PRESETS, "initial.subset": SUBSET_CHOICES,
+           "initial.ranking": RANKING_CHOICES}
 READ_ONLY = {"preset", "source_qos", "target_qos"}
 
 
