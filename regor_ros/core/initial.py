@@ -21,7 +21,7 @@ from .matching import FeatureMatches
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
 SUPPORT_ROWS = 256   # source keypoints that rank hypotheses by candidate support
-SUPPORT_BATCH = 128  # hypotheses per vectorised batch (memory: batch x rows x K floats)
+SUPPORT_BATCH = 16   # hypotheses per vectorised batch (batch x rows x K floats stay in cache)
 
 
 @dataclass
