@@ -59,7 +59,8 @@ def parameter_tables() -> str:
         lines.append(f"| `{f.name}` | {_cell(f.default)} | {f.metadata['description']} |")
     presets = {name: RegorConfig.preset(name).to_flat() for name in PRESETS}
     lines += ["", "Core settings (indoor = the paper's 3DMatch settings, outdoor = its KITTI settings, "
-              "object = indoor scaled by 0.06 for table-top objects):", "",
+              "object = indoor scaled by 0.06 for table-top objects; where we deviate from the "
+              "authors, the meaning says so and gives their value):", "",
               "| parameter | " + " | ".join(PRESETS) + " | meaning [valid range] |",
               "|---|" + "---|" * len(PRESETS) + "---|"]
     for name, value, f in RegorConfig().parameters():
