@@ -34,7 +34,7 @@ class FeatureConfig:
     fpfh_radius: float = _param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
     fpfh_max_nn: int = _param(100, "max neighbours for the FPFH descriptor", 5, 1000)
     remove_ground: bool = _param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
-                                 "its rings make unrelated scans look aligned at the same sensor position; deviation, outdoor preset only)")
+                                 "its rings make unrelated scans look aligned at the same sensor position (deviation; outdoor preset only)")
     min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
 
 
