@@ -1,8 +1,9 @@
 """SC2-PCR++ initial stage (SPEC section 2): from feature matches to a first pose and its inliers.
 
 Seeds with high spectral confidence grow second-order consensus sets; each gives a hypothesis,
-the best by inlier count (or by candidate support) are compared by FS-TCD (how many feature-verified matches agree in
-length with the best of them), and the winner is post-refined. Its inliers seed regeneration.
+the best by inlier count (or by candidate support) are compared by FS-TCD (how many
+feature-verified matches agree in length with the best of them), and the winner is post-refined.
+Its inliers seed regeneration.
 """
 from __future__ import annotations
 
@@ -20,8 +21,7 @@ from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
-SUPPORT_ROWS = 256   # source keypoints that rank hypotheses by candidate support
-SUPPORT_BATCH = 16   # hypotheses per vectorised batch (batch x rows x K floats stay in cache)
+SUPPORT_ROWS = 256  # source keypoints that rank hypotheses by candidate support
 
 
 @dataclass
@@ -89,6 +89,14 @@ def inlier_counts(transforms: np.ndarray, src: np.ndarray, tgt: np.ndarray,
     return (sq < threshold ** 2).sum(axis=0)
 
 
+def candidate_residuals(T: np.ndarray, source_points: np.ndarray,
+                        candidate_points: np.ndarray) -> np.ndarray:
+    """(N, K) squared distances from each warped source keypoint to its K candidates, given as
+    x, y, z planes (3, N, K) in float32."""
+    moved = transform_points(T, source_points).astype(np.float32)
+    return sum((candidate_points[c] - moved[:, c, None]) ** 2 for c in range(3))
+
+
 def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
                       candidate_points: np.ndarray, threshold: float) -> np.ndarray:
     """For each pose, how many of SUPPORT_ROWS source keypoints land within ``threshold`` of one
@@ -96,14 +104,9 @@ def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
     hypothesis. At low overlap the inlier count on a few thousand matches ranks the rare
     correct pose below the crowd; the candidates' fuller feature evidence does not."""
     rows = np.unique(np.linspace(0, len(source_points) - 1, SUPPORT_ROWS).astype(np.int64))
-    points, planes = source_points[rows], candidate_points[:, rows]
-    support = np.empty(len(transforms), dtype=np.int64)
-    for start in range(0, len(transforms), SUPPORT_BATCH):
-        T = transforms[start:start + SUPPORT_BATCH]
-        moved = (np.einsum("bij,rj->bri", T[:, :3, :3], points) + T[:, None, :3, 3]).astype(np.float32)
-        e2 = sum((planes[c] - moved[:, :, c, None]) ** 2 for c in range(3))     # (B, R, K)
-        support[start:start + len(T)] = (e2.min(axis=2) <= threshold ** 2).sum(axis=1)
-    return support
+    points, planes = source_points[rows], np.ascontiguousarray(candidate_points[:, rows])
+    return np.array([(candidate_residuals(T, points, planes).min(axis=1) <= threshold ** 2).sum()
+                     for T in transforms], dtype=np.int64)
 
 
 def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
@@ -113,8 +116,7 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
     candidate lying near its warped position, then count the largest set of these verified
     matches that agree in length with one of them. Returns (fitness, verified src, verified tgt)."""
     tau = cfg.inlier_threshold
-    moved = transform_points(T, source_points).astype(np.float32)
-    e2 = sum((candidate_points[c] - moved[:, c, None]) ** 2 for c in range(3))  # (N, K)
+    e2 = candidate_residuals(T, source_points, candidate_points)
     verified = e2.min(axis=1) <= tau ** 2
     if not verified.any():
         return 0, source_points[:0], source_points[:0]
@@ -164,16 +166,15 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     shift = np.eye(4)
     shift[:3, 3] = -origin
     candidate_sources = source.points[matches.candidate_rows]
-    if cfg.ranking == "candidates":
-        counts = candidate_support(shift @ hypotheses, candidate_sources, candidate_points,
-                                   cfg.inlier_threshold)
-    ranked = top_k_stable(counts, cfg.num_hypotheses)
+    scores = counts if cfg.ranking == "inliers" else candidate_support(
+        shift @ hypotheses, candidate_sources, candidate_points, cfg.inlier_threshold)
+    ranked = top_k_stable(scores, cfg.num_hypotheses)
     best_fitness, T_fs = -1, T_ic
     kept: list = []
     refine_src, refine_tgt = src, tgt
+    tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
     for h in ranked:
         T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1)
-        tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
         if cfg.dedupe_hypotheses and any(poses_close(T, K, DEDUPE_ANGLE_DEG, tolerance) for K in kept):
             continue
         kept.append(T)
