@@ -102,8 +102,8 @@ class AcceptanceConfig:
 
 
 PRESETS = ("indoor", "outdoor", "object")
-SUBSET_CHOICES = ("random", "best")
-RANKING_CHOICES = ("inliers", "candidates")
+# string parameters and the values they accept
+CHOICES = {"initial.subset": ("random", "best"), "initial.ranking": ("inliers", "candidates")}
 
 
 @dataclass
@@ -178,6 +178,8 @@ class RegorConfig:
     def validate(self) -> "RegorConfig":
         """Raise ConfigError naming the first field that is out of range or inconsistent."""
         for name, value, f in self.parameters():
+            if name in CHOICES and value not in CHOICES[name]:
+                raise ConfigError(f"{name}={value!r}: choose one of {', '.join(CHOICES[name])}")
             low, high = f.metadata["range"]
             values = value if isinstance(value, list) else [value]
             for v in values:
@@ -189,10 +191,6 @@ class RegorConfig:
         if len(regen.stage_neighbors) != len(regen.stage_seeds):
             raise ConfigError("regeneration.stage_neighbors and regeneration.stage_seeds must have "
                               f"one entry per stage (got {len(regen.stage_neighbors)} and {len(regen.stage_seeds)})")
-        if self.initial.subset not in SUBSET_CHOICES:
-            raise ConfigError(f"initial.subset={self.initial.subset!r}: choose one of {', '.join(SUBSET_CHOICES)}")
-        if self.initial.ranking not in RANKING_CHOICES:
-            raise ConfigError(f"initial.ranking={self.initial.ranking!r}: choose one of {', '.join(RANKING_CHOICES)}")
         if self.initial.k2 > self.initial.k1:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
         if self.features.normal_radius < self.features.voxel_size:

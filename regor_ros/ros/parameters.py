@@ -11,7 +11,8 @@ from typing import Dict, Tuple
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from ..core.config import PRESETS, RANKING_CHOICES, SUBSET_CHOICES, ConfigError, RegorConfig, _param
+from ..core.config import CHOICES as CORE_CHOICES
+from ..core.config import PRESETS, ConfigError, RegorConfig, _param
 
 QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
 MODE_CHOICES = ("pairs", "map")
@@ -38,8 +39,7 @@ class NodeSettings:
 
 
 CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
-           "preset": PRESETS, "initial.subset": SUBSET_CHOICES,
-           "initial.ranking": RANKING_CHOICES}
+           "preset": PRESETS, **CORE_CHOICES}
 READ_ONLY = {"preset", "source_qos", "target_qos"}
 
 
