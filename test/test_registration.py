@@ -3,7 +3,9 @@ import numpy as np
 import pytest
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
+from regor_ros.core.estimate import transform_points
 from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+from regor_ros.core.pipeline import _register_once, _undo_turn, regrid_rotation
 
 from conftest import load_pair, moved_pair
 
@@ -47,6 +49,39 @@ def test_same_seed_same_pose_and_prepared_target_reused(kitchen_pair):
     second = register(src, target, cfg)
     np.testing.assert_array_equal(first.transform, second.transform)
     assert second.timings["features"] < first.timings["total"]
+
+
+def test_a_retry_result_is_given_in_the_source_frame(kitchen_pair):
+    src, tgt, T_gt, _ = kitchen_pair
+    cfg = RegorConfig()
+    turn = regrid_rotation(cfg.seed, 1)
+    assert rotation_error_deg(turn, np.eye(4)) > 30.0   # a real turn, so a frame slip would show
+    target = prepare_cloud(tgt, cfg, "target")
+    r = _undo_turn(_register_once(transform_points(turn, src), target, cfg), turn)
+    assert is_success(r.transform, T_gt, "indoor")
+    keypoints = prepare_cloud(src, cfg, "source").tree
+    for pairs in (r.initial, r.final):   # source keypoints lie on the source as given
+        assert np.median(keypoints.query(pairs.source)[0]) < cfg.features.voxel_size
+    moved = transform_points(r.transform, r.final.source)
+    assert np.median(np.linalg.norm(moved - r.final.target, axis=1)) < 0.05
+
+
+def test_a_rejected_pose_is_retried_and_the_first_attempt_reported(kitchen_pair):
+    src, tgt, _, _ = kitchen_pair
+    strict = RegorConfig().replace({"min_inliers": 10 ** 6})   # no pose can pass
+    once = register(src, tgt, strict)
+    thrice = register(src, tgt, strict.replace({"retries": 2}))
+    assert (once.attempts, thrice.attempts) == (1, 3) and not thrice.accepted
+    np.testing.assert_array_equal(once.transform, thrice.transform)
+    assert thrice.reason == once.reason and thrice.summary()["attempts"] == 3
+    prepared = prepare_cloud(src, strict, "source")   # cannot be re-gridded
+    assert register(prepared, tgt, strict.replace({"retries": 2})).attempts == 1
+
+
+def test_an_accepted_pose_is_not_retried(kitchen_pair):
+    src, tgt, _, _ = kitchen_pair
+    r = register(src, tgt, RegorConfig().replace({"retries": 3}))
+    assert r.accepted and r.attempts == 1
 
 
 def test_prepared_cloud_with_other_settings_is_refused(kitchen_pair):

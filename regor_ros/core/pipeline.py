@@ -1,6 +1,7 @@
 """register(): the whole Regor pipeline from two point clouds to a checked pose."""
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Union
@@ -13,12 +14,14 @@ from .estimate import (UNCONSTRAINED_VARIANCE, point_refine, pose_covariance, po
 from .features import PreparedCloud, RegistrationError, prepare
 from .initial import initial_stage
 from .matching import match_features
+from .metrics import random_rigid_motion
 from .regenerate import regenerate
 
 CloudInput = Union[np.ndarray, PreparedCloud]
 # the regenerated and the initial pose count as one when this close: no second refinement needed
 SAME_POSE_DEG = 2.0
 SAME_POSE_FRACTION = 0.5  # of the estimator's inlier threshold
+REGRID_STREAM = 2  # keeps the retry rotations apart from other seeded draws of the same seed
 
 
 @dataclass
@@ -45,6 +48,7 @@ class RegistrationResult:
     selected: str = "regeneration"  # which pose the estimator kept: "regeneration" or "initial"
     stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
     timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
+    attempts: int = 1  # registrations run: 1 + the acceptance.retries used
 
     def summary(self) -> Dict:
         """The verdict and quality figures as plain values, for logs, status messages and JSON."""
@@ -55,6 +59,7 @@ class RegistrationResult:
             "source_keypoints": self.num_source_keypoints,
             "target_keypoints": self.num_target_keypoints,
             "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
+            "attempts": self.attempts,
         }
 
 
@@ -78,9 +83,51 @@ def register(source: CloudInput, target: CloudInput,
 
     ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Raises
     RegistrationError when an input cannot be registered; a registered pose that fails the
-    quality gate comes back with ``accepted=False`` and the reason.
+    quality gate comes back with ``accepted=False`` and the reason (that of the first attempt).
+
+    With acceptance.retries, a rejected raw source is registered again on a re-drawn voxel grid:
+    how many FPFH matches are correct varies several-fold with the grid, so a pair that fails on
+    one grid often passes on another. A prepared source cannot be re-gridded and is not retried.
     """
     config = (config or RegorConfig()).validate()
+    start = time.perf_counter()
+    target = _prepared(target, config, "target")  # once for every attempt
+    target_seconds = time.perf_counter() - start
+    result = _register_once(source, target, config)
+    attempt = 0
+    while (not result.accepted and attempt < config.acceptance.retries
+           and not isinstance(source, PreparedCloud)):
+        attempt += 1
+        turn = regrid_rotation(config.seed, attempt)
+        retry = _register_once(transform_points(turn, np.asarray(source, dtype=np.float64)),
+                               target, config)
+        if retry.accepted:
+            result = _undo_turn(retry, turn)
+    result.attempts = attempt + 1
+    result.timings["features"] += target_seconds
+    result.timings["total"] = time.perf_counter() - start
+    return result
+
+
+def regrid_rotation(seed: int, attempt: int) -> np.ndarray:
+    """The seeded rotation (4x4) that gives retry ``attempt`` its own voxel grid."""
+    turn = random_rigid_motion([REGRID_STREAM, seed, attempt])
+    turn[:3, 3] = 0.0
+    return turn
+
+
+def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResult:
+    """Express a result registered from the turned source in the source's own frame."""
+    back = turn[:3, :3]  # a turned point p @ R^T goes back by @ R
+    return dataclasses.replace(
+        result, transform=result.transform @ turn,
+        initial=dataclasses.replace(result.initial, source=result.initial.source @ back),
+        final=dataclasses.replace(result.final, source=result.final.source @ back))
+
+
+def _register_once(source: CloudInput, target: PreparedCloud,
+                   config: RegorConfig) -> RegistrationResult:
+    """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate."""
     rng = np.random.default_rng(config.seed)
     timings: Dict[str, float] = {}
     clock = time.perf_counter()

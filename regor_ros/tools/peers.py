@@ -30,7 +30,7 @@ class MethodResult:
 def _regor_variant(overrides: Dict) -> Callable:
     def run(src: PreparedCloud, tgt: PreparedCloud, raw_src, raw_tgt, config: RegorConfig, seed: int):
         cfg = config.replace({**overrides, "seed": seed})
-        r = register(src, tgt, cfg)
+        r = register(raw_src if cfg.acceptance.retries else src, tgt, cfg)  # retries re-grid the raw source
         return MethodResult(r.transform, r.timings["total"] - r.timings["features"],
                             final=(r.final.source, r.final.target),
                             initial=(r.initial.source, r.initial.target), accepted=r.accepted)
@@ -91,6 +91,7 @@ METHODS: Dict[str, Callable] = {
     "regor": _regor_variant({}),
     "regor-1stage": _regor_variant({"stage_neighbors": [20], "stage_seeds": [500]}),
     "sc2pcr++": _regor_variant({"stage_neighbors": [], "stage_seeds": []}),
+    "regor-retry3": _regor_variant({"retries": 3}),
     "o3d-ransac": open3d_ransac,
     "o3d-fgr": open3d_fgr,
     "kiss-matcher": kiss_matcher,
@@ -100,6 +101,7 @@ DESCRIPTIONS = {
     "regor": "Regor as configured (SC2-PCR++ initial stage, two regeneration stages, estimator)",
     "regor-1stage": "Regor with one regeneration stage (k=20, s=500), the paper's fast ablation",
     "sc2pcr++": "SC2-PCR++ initial stage alone, then the same point-level estimator (ablation)",
+    "regor-retry3": "Regor with acceptance.retries=3: a rejected pose is registered again on up to 3 re-drawn voxel grids",
     "o3d-ransac": "Open3D FPFH + RANSAC, mutual filter, edge 0.9 + distance checkers, 100k iterations",
     "o3d-fgr": "Open3D Fast Global Registration on the same features",
     "kiss-matcher": "KISS-Matcher 1.0 (pip), own features at the same voxel size",
