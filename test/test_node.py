@@ -80,6 +80,21 @@ def test_bad_cloud_is_skipped_and_the_next_pair_still_registers(pairs_node, ros)
     assert pairs_node.proc.poll() is None
 
 
+def test_retries_run_in_the_node_and_a_rejected_pose_is_not_published(pairs_node, ros):
+    assert set_param(ros, "acceptance.retries", 2).successful
+    assert set_param(ros, "acceptance.min_inliers", 10 ** 6).successful   # no pose can pass
+    try:
+        src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
+        poses_before = len(ros.poses)
+        pose, status = ros.register_pair(src, tgt, TIMEOUT)
+        assert status is not None and not status["accepted"] and status["attempts"] == 3, status
+        assert pose is None and "min_inliers" in status["reason"]
+        assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
+    finally:
+        assert set_param(ros, "acceptance.min_inliers", 40).successful
+        assert set_param(ros, "acceptance.retries", 0).successful
+
+
 def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
     pairs_node.stop()
     node = NodeProcess(install, "-p", "mode:=map", "-r", "__node:=register_node")
