@@ -78,6 +78,16 @@ def test_a_rejected_pose_is_retried_and_the_first_attempt_reported(kitchen_pair)
     assert register(prepared, tgt, strict.replace({"retries": 2})).attempts == 1
 
 
+def test_a_retry_grid_with_too_few_points_ends_the_retries_quietly():
+    cube = np.random.default_rng(0).uniform(0.0, 0.3, (300, 3))
+    keypoints = len(prepare_cloud(cube, RegorConfig(), "cube"))
+    cfg = RegorConfig().replace({"min_points": keypoints, "min_inliers": 10 ** 6, "retries": 2})
+    assert len(prepare_cloud(transform_points(regrid_rotation(cfg.seed, 1), cube), RegorConfig(),
+                             "turned")) < keypoints   # so the first retry's grid is refused
+    r = register(cube, cube, cfg)
+    assert not r.accepted and r.attempts == 1
+
+
 def test_an_accepted_pose_is_not_retried(kitchen_pair):
     src, tgt, _, _ = kitchen_pair
     r = register(src, tgt, RegorConfig().replace({"retries": 3}))

@@ -94,16 +94,19 @@ def register(source: CloudInput, target: CloudInput,
     target = _prepared(target, config, "target")  # once for every attempt
     target_seconds = time.perf_counter() - start
     result = _register_once(source, target, config)
-    attempt = 0
-    while (not result.accepted and attempt < config.acceptance.retries
+    attempts = 1
+    while (not result.accepted and attempts <= config.acceptance.retries
            and not isinstance(source, PreparedCloud)):
-        attempt += 1
-        turn = regrid_rotation(config.seed, attempt)
-        retry = _register_once(transform_points(turn, np.asarray(source, dtype=np.float64)),
-                               target, config)
+        turn = regrid_rotation(config.seed, attempts)
+        try:
+            retry = _register_once(transform_points(turn, np.asarray(source, dtype=np.float64)),
+                                   target, config)
+        except RegistrationError:  # this grid keeps too few points: the verdict so far stands
+            break
+        attempts += 1
         if retry.accepted:
             result = _undo_turn(retry, turn)
-    result.attempts = attempt + 1
+    result.attempts = attempts
     result.timings["features"] += target_seconds
     result.timings["total"] = time.perf_counter() - start
     return result
