@@ -4,7 +4,8 @@ import pytest
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import transform_points
-from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+from regor_ros.core.metrics import (is_success, random_rigid_motion, rotation_error_deg,
+                                    translation_error)
 from regor_ros.core.pipeline import _register_once, _undo_turn, regrid_rotation
 
 from conftest import load_pair, moved_pair
@@ -127,6 +128,20 @@ def test_scans_of_different_places_are_not_accepted(source_pair, target_pair):
     tgt = load_pair(target_pair)[1]
     result = register(src, tgt, RegorConfig.preset(kind))
     assert not result.accepted and result.reason
+
+
+def test_reverse_check_rejects_a_room_of_another_place_and_keeps_a_true_pose(kitchen_pair):
+    hotel = load_pair("3dmatch_hotel_umd_8_15_ds")[0]
+    motion = random_rigid_motion([3, 10])   # the benchmark's motion 3 of this pair
+    kitchen = load_pair("3dmatch_redkitchen_0_5_ds")[1]
+    cfg = RegorConfig().replace({"seed": 3})
+    assert register(hotel @ motion[:3, :3].T + motion[:3, 3], kitchen, cfg).accepted  # the known limit
+    checked = register(hotel @ motion[:3, :3].T + motion[:3, 3], kitchen,
+                       cfg.replace({"reverse_check": True}))
+    assert not checked.accepted and "reverse_check" in checked.reason
+    src, tgt, T_gt, _ = kitchen_pair
+    true_pose = register(src, tgt, RegorConfig().replace({"reverse_check": True}))
+    assert true_pose.accepted and is_success(true_pose.transform, T_gt, "indoor")
 
 
 def degenerate_cases():

@@ -99,6 +99,9 @@ class AcceptanceConfig:
     min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
     min_feature_inliers: int = _param(70, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms", 0, 1000000)
+    reverse_check: bool = _param(False, "also register target to source and accept only if that returns the inverse "
+                                 "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
+                                 "registration per accepted pose; deviation)")
     retries: int = _param(0, "when the gate rejects, register a raw source again up to this many times on a "
                           "re-drawn voxel grid (the source turned by a seeded rotation) and keep the first accepted "
                           "pose; FPFH matches depend strongly on the grid (recall for latency; deviation)", 0, 20)
