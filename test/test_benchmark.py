@@ -28,10 +28,18 @@ def two_pairs(tmp_path):
 
 def test_mismatched_mode_counts_accepted_poses_across_places(tmp_path, capsys):
     folder = pair_folder(tmp_path, ["3dmatch_redkitchen_5_6_ds", "3dmatch_hotel_umd_8_15_ds"])
-    assert main([str(folder), "--mismatched", "--rotate", "2", "--out", str(tmp_path / "out")]) == 0
+    assert main([str(folder), "--mismatched", "--rotate", "2", "--methods", "regor,kiss-matcher",
+                 "--out", str(tmp_path / "out")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "mismatched.csv")))
+    assert {r["pair"] for r in rows} == {"3dmatch_redkitchen_5_6_ds -> 3dmatch_hotel_umd_8_15_ds",
+                                         "3dmatch_hotel_umd_8_15_ds -> 3dmatch_redkitchen_5_6_ds"}
+    assert len(rows) == 4 and not any(r["success"] == "True" for r in rows)
+    # every accepted pose counts as published wrong
     report = (tmp_path / "out" / "mismatched.md").read_text()
-    assert report.startswith("Scans of different places: 0 of 2 poses accepted")
-    assert "| 3dmatch_redkitchen_5_6_ds | 3dmatch_hotel_umd_8_15_ds | False |" in report
+    for method in ("regor", "kiss-matcher"):
+        accepted = sum(r["accepted"] == "True" for r in rows if r["method"] == method)
+        assert f"| all | {method} | 0.0 % | 0/2 |" in report
+        assert report.split(f"| all | {method} |")[1].split("\n")[0].endswith(f"| 0 / {accepted} |")
 
 
 def test_benchmark_command_writes_table_csv_and_plot(two_pairs, tmp_path, capsys):

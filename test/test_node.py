@@ -65,6 +65,23 @@ def test_invalid_changes_are_rejected_with_a_reason_and_valid_ones_apply(pairs_n
     assert sum(len(m.points) // 2 for m in ros.markers[-1].markers) <= 50
 
 
+def test_viewpoint_parameters_choose_the_sides_of_the_free_space_check(pairs_node, ros):
+    bad = set_param(ros, "source_viewpoint", "1, 2")
+    assert not bad.successful and "x, y, z" in bad.reason
+    src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 27)
+    _, status = ros.register_pair(src, tgt, TIMEOUT)
+    both = status["visibility"]
+    assert both["source_violation"] is not None and both["target_violation"] is not None, status
+    assert set_param(ros, "target_viewpoint", "none").successful
+    try:
+        _, status = ros.register_pair(src, tgt, TIMEOUT)
+        one = status["visibility"]
+        assert one["target_violation"] is None and one["source_violation"] is not None, status
+        assert status["accepted"], status
+    finally:
+        assert set_param(ros, "target_viewpoint", "auto").successful
+
+
 def test_bad_cloud_is_skipped_and_the_next_pair_still_registers(pairs_node, ros):
     broken = PointCloud2(header=Header(frame_id="scan"), height=1, width=100, point_step=12,
                          row_step=1200, data=b"\x00" * 10,

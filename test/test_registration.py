@@ -58,7 +58,8 @@ def test_a_retry_result_is_given_in_the_source_frame(kitchen_pair):
     turn = regrid_rotation(cfg.seed, 1)
     assert rotation_error_deg(turn, np.eye(4)) > 30.0   # a real turn, so a frame slip would show
     target = prepare_cloud(tgt, cfg, "target")
-    r = _undo_turn(_register_once(transform_points(turn, src), target, cfg), turn)
+    turned = prepare_cloud(transform_points(turn, src), cfg, "source")
+    r = _undo_turn(_register_once(turned, target, cfg), turn)
     assert is_success(r.transform, T_gt, "indoor")
     keypoints = prepare_cloud(src, cfg, "source").tree
     for pairs in (r.initial, r.final):   # source keypoints lie on the source as given
@@ -130,14 +131,32 @@ def test_scans_of_different_places_are_not_accepted(source_pair, target_pair):
     assert not result.accepted and result.reason
 
 
-def test_reverse_check_rejects_a_room_of_another_place_and_keeps_a_true_pose(kitchen_pair):
+def hotel_scan_moved_by_benchmark_motion_3():
+    """A hotel scan, moved as the benchmark's motion 3 moves it, and where its sensor went."""
     hotel = load_pair("3dmatch_hotel_umd_8_15_ds")[0]
     motion = random_rigid_motion([3, 10])   # the benchmark's motion 3 of this pair
-    moved_hotel = hotel @ motion[:3, :3].T + motion[:3, 3]
+    return hotel @ motion[:3, :3].T + motion[:3, 3], motion[:3, 3]
+
+
+def test_a_real_room_of_another_place_is_rejected_by_the_free_space_check_alone():
+    """This hotel scan aligns with a kitchen's walls and floor, with 97 agreeing feature matches;
+    only the free-space check tells that the kitchen's surfaces stand inside the hotel room."""
+    hotel, sensor = hotel_scan_moved_by_benchmark_motion_3()
     kitchen = load_pair("3dmatch_redkitchen_0_5_ds")[1]
     cfg = RegorConfig().replace({"seed": 3})
-    assert register(moved_hotel, kitchen, cfg).accepted  # the known limit
-    checked = register(moved_hotel, kitchen, cfg.replace({"reverse_check": True}))
+    blind = register(hotel, kitchen, cfg.replace({"max_free_space_violation": 1.0}), source_viewpoint=sensor)
+    assert blind.accepted  # every other check passes
+    checked = register(hotel, kitchen, cfg, source_viewpoint=sensor)
+    assert np.allclose(checked.transform, blind.transform)
+    assert not checked.accepted and "max_free_space_violation" in checked.reason
+    assert checked.visibility.worst > cfg.acceptance.max_free_space_violation
+
+
+def test_reverse_check_rejects_a_room_of_another_place_and_keeps_a_true_pose(kitchen_pair):
+    hotel, sensor = hotel_scan_moved_by_benchmark_motion_3()
+    kitchen = load_pair("3dmatch_redkitchen_0_5_ds")[1]
+    cfg = RegorConfig().replace({"seed": 3, "max_free_space_violation": 1.0, "reverse_check": True})
+    checked = register(hotel, kitchen, cfg, source_viewpoint=sensor)
     assert not checked.accepted and "reverse_check" in checked.reason
     src, tgt, T_gt, _ = kitchen_pair
     true_pose = register(src, tgt, RegorConfig().replace({"reverse_check": True}))

@@ -36,6 +36,8 @@ class FeatureConfig:
     remove_ground: bool = _param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
                                  "its rings make unrelated scans look aligned at the same sensor position (deviation; outdoor preset only)")
     min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
+    range_image_resolution: float = _param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
+                                           "for the free-space check (coarser than the sensor's own resolution) [deg]", 0.05, 10.0)
 
 
 @dataclass
@@ -62,6 +64,8 @@ class InitialConfig:
     dedupe_hypotheses: bool = _param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
     fs_tcd_points: int = _param(2500, "random subset of source keypoints verified by FS-TCD (deviation, for large clouds); 0 = all", 0, 1000000)
     fs_tcd_rows: int = _param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all (deviation)", 0, 100000)
+    free_space_selection: bool = _param(False, "FS-TCD picks the fittest hypothesis that passes the free-space check "
+                                        "(acceptance.max_free_space_violation), not the fittest of all (deviation)")
     reproduce_fs_tcd_quirk: bool = _param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the previous hypothesis's matches)")
 
 
@@ -99,6 +103,16 @@ class AcceptanceConfig:
     min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
     min_feature_inliers: int = _param(70, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms", 0, 1000000)
+    max_free_space_violation: float = _param(0.3, "largest fraction of one cloud's keypoints that may sit in space the other "
+                                             "cloud's sensor saw through (free-space check; needs a viewpoint; 1 = off)", 0.0, 1.0)
+    free_space_margin: float = _param(0.15, "a keypoint is in seen free space only when nearer than the seen surface by more "
+                                      "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
+    free_space_margin_ratio: float = _param(0.02, "range-proportional part of the free-space margin (depth noise grows "
+                                            "with range)", 0.0, 1.0)
+    free_space_min_seen: int = _param(50, "fewest keypoints landing on seen bins for the free-space figure to count", 1, 1000000)
+    max_ambiguity: float = _param(10.0, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
+                                  "overlap (refined, passing the free-space check) keeps this fraction of its inliers: "
+                                  "a symmetric room; 10 = off", 0.0, 10.0)
     reverse_check: bool = _param(False, "also register target to source and accept only if that returns the inverse "
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
                                  "registration per accepted pose; deviation)")
@@ -138,7 +152,7 @@ class RegorConfig:
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=50),
+                acceptance=AcceptanceConfig(min_feature_inliers=50, free_space_margin=0.9),
             )
         if name == "object":
             s = 0.06  # object scale relative to indoor
@@ -149,7 +163,7 @@ class RegorConfig:
                                       refine_threshold=0.10 * s),
                 regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
                 estimation=EstimationConfig(inlier_threshold=0.10 * s),
-                acceptance=AcceptanceConfig(min_feature_inliers=50),
+                acceptance=AcceptanceConfig(min_feature_inliers=50, free_space_margin=0.15 * s),
             )
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 

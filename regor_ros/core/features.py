@@ -6,12 +6,14 @@ is prepared once and reused for every source registered against it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
+from .visibility import RangeImage
 
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
 MAX_ABS_COORDINATE = 1e6
@@ -31,6 +33,7 @@ class PreparedCloud:
     tree: cKDTree
     config: FeatureConfig  # the settings it was prepared with
     input_size: int        # finite points in the raw cloud
+    range_image: Optional[RangeImage] = None  # what its sensor saw, when the viewpoint is known
 
     def __len__(self) -> int:
         return len(self.points)
@@ -86,8 +89,24 @@ def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
     return np.abs((points - centroid) @ normal) < distance
 
 
-def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
-    """Downsample, estimate normals, compute FPFH and L2-normalise the features."""
+def check_viewpoint(viewpoint, name: str) -> Optional[np.ndarray]:
+    """The sensor position as a (3,) array, or None when unknown; RegistrationError if malformed."""
+    if viewpoint is None:
+        return None
+    try:
+        vp = np.asarray(viewpoint, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RegistrationError(f"{name} viewpoint: expected (x, y, z) or None, got {viewpoint!r}") from None
+    if vp.shape != (3,) or not np.isfinite(vp).all():
+        raise RegistrationError(f"{name} viewpoint: expected three finite numbers (x, y, z) or None, "
+                                f"got {viewpoint!r}")
+    return vp
+
+
+def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> PreparedCloud:
+    """Downsample, estimate normals, compute FPFH and L2-normalise the features; with the sensor's
+    ``viewpoint`` (in the cloud's frame) also the range image of what it saw, from the raw points."""
+    vp = check_viewpoint(viewpoint, name)
     points = clean_points(xyz, name)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down = pcd.voxel_down_sample(config.voxel_size)
@@ -108,5 +127,6 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud") -> PreparedCloud:
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     keypoints = np.asarray(down.points, dtype=np.float64)
     normals = np.asarray(down.normals, dtype=np.float64)
+    image = None if vp is None else RangeImage.build(points, vp, config.range_image_resolution)
     return PreparedCloud(keypoints, normals, np.ascontiguousarray(features), cKDTree(keypoints),
-                         config, len(points))
+                         config, len(points), image)

@@ -8,6 +8,7 @@ Its inliers seed regeneration.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -148,10 +149,23 @@ def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random
     return np.sort(order[:cfg.max_correspondences])
 
 
+def _fittest(poses: list, fitnesses: list, plausible) -> np.ndarray:
+    """The pose of highest fitness (the first on ties), among the plausible ones when any is."""
+    order = np.argsort(-np.asarray(fitnesses), kind="stable")
+    if plausible is not None:
+        for i in order:
+            if plausible(poses[i]):
+                return poses[i]
+    return poses[order[0]]
+
+
 def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                  matches: FeatureMatches, cfg: InitialConfig,
-                  rng: np.random.Generator) -> InitialResult:
-    """Run SC2-PCR++ on the correspondences (src[i], tgt[i]) and return T_m with its inliers."""
+                  matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator,
+                  plausible: Optional[Callable[[np.ndarray], bool]] = None) -> InitialResult:
+    """Run SC2-PCR++ on the correspondences (src[i], tgt[i]) and return T_m with its inliers.
+
+    With ``plausible`` (a pose -> bool check, e.g. free space), FS-TCD's winner is the fittest
+    plausible hypothesis, or the fittest of all when none is plausible."""
     subset = consensus_subset(matches, cfg, rng)
     sub_src, sub_tgt = src[subset], tgt[subset]
 
@@ -169,8 +183,8 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     scores = counts if cfg.ranking == "inliers" else candidate_support(
         shift @ hypotheses, candidate_sources, candidate_points, cfg.inlier_threshold)
     ranked = top_k_stable(scores, cfg.num_hypotheses)
-    best_fitness, T_fs = -1, T_ic
     kept: list = []
+    fitnesses: list = []
     refine_src, refine_tgt = src, tgt
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
     for h in ranked:
@@ -184,8 +198,8 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
         verified_tgt = verified_tgt + origin
         if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:
             refine_src, refine_tgt = verified_src, verified_tgt
-        if fitness > best_fitness:
-            best_fitness, T_fs = fitness, T
+        fitnesses.append(fitness)
+    T_fs = _fittest(kept, fitnesses, plausible) if kept else T_ic
 
     T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20)
     inliers = np.linalg.norm(transform_points(T_m, src) - tgt, axis=1) < cfg.inlier_threshold

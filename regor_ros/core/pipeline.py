@@ -4,18 +4,19 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Union
+from typing import Dict, List, Optional, Union
 
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import (UNCONSTRAINED_VARIANCE, point_refine, pose_covariance, poses_close,
-                       transform_points, weighted_kabsch)
-from .features import PreparedCloud, RegistrationError, prepare
+from .estimate import point_refine, pose_covariance, poses_close, transform_points, weighted_kabsch
+from .features import PreparedCloud, RegistrationError, check_viewpoint, prepare
 from .initial import initial_stage
 from .matching import match_features
 from .metrics import random_rigid_motion, rotation_error_deg, translation_error
 from .regenerate import regenerate
+from .verification import Rival, ambiguity, assess, visibility_figures
+from .visibility import ORIGIN, VisibilityFigures
 
 CloudInput = Union[np.ndarray, PreparedCloud]
 # the regenerated and the initial pose count as one when this close: no second refinement needed
@@ -52,6 +53,9 @@ class RegistrationResult:
     stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
     timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
     attempts: int = 1  # registrations run: 1 + the acceptance.retries used
+    visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
+    rivals: List[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
+    ambiguity: Optional[float] = None  # inlier ratio of the best rival that passes the free-space check
 
     def summary(self) -> Dict:
         """The verdict and quality figures as plain values, for logs, status messages and JSON."""
@@ -62,31 +66,39 @@ class RegistrationResult:
             "source_keypoints": self.num_source_keypoints,
             "target_keypoints": self.num_target_keypoints,
             "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
-            "attempts": self.attempts,
+            "attempts": self.attempts, "visibility": self.visibility.as_dict(),
+            "ambiguity": self.ambiguity,
+            "rivals": [dataclasses.asdict(r) for r in self.rivals],
         }
 
 
-def prepare_cloud(points, config: RegorConfig, name: str = "cloud") -> PreparedCloud:
-    """Prepare a cloud once (e.g. a static map) to pass to register() many times."""
-    return prepare(points, config.features, name)
+def prepare_cloud(points, config: RegorConfig, name: str = "cloud", *,
+                  viewpoint=ORIGIN) -> PreparedCloud:
+    """Prepare a cloud once (e.g. a static map) to pass to register() many times. ``viewpoint`` is
+    the sensor position in the cloud's frame, or None for a cloud aggregated along a trajectory
+    (a map): it lets the quality gate check free space."""
+    return prepare(points, config.features, name, viewpoint)
 
 
-def _prepared(cloud: CloudInput, config: RegorConfig, name: str) -> PreparedCloud:
+def _prepared(cloud: CloudInput, config: RegorConfig, name: str, viewpoint) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name)
+    return prepare(cloud, config.features, name, viewpoint)
 
 
-def register(source: CloudInput, target: CloudInput,
-             config: Optional[RegorConfig] = None) -> RegistrationResult:
+def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
+             source_viewpoint=ORIGIN, target_viewpoint=ORIGIN) -> RegistrationResult:
     """Estimate T_target_source with no initial guess.
 
-    ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Raises
-    RegistrationError when an input cannot be registered; a registered pose that fails the
-    quality gate comes back with ``accepted=False`` and the reason (that of the first attempt).
+    ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Each viewpoint is
+    the sensor position in that cloud's own frame (the origin for a camera fragment or a single
+    scan), or None when unknown (a map aggregated along a trajectory); the free-space check uses
+    the sides whose viewpoint is known. A PreparedCloud keeps the viewpoint it was prepared with.
+    Raises RegistrationError when an input cannot be registered; a registered pose that fails
+    the quality gate comes back with ``accepted=False`` and the reason (that of the first attempt).
 
     With acceptance.retries, a rejected raw source is registered again on a re-drawn voxel grid:
     how many FPFH matches are correct varies several-fold with the grid, so a pair that fails on
@@ -95,19 +107,24 @@ def register(source: CloudInput, target: CloudInput,
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
     # prepared once: the target for every attempt, the source also for the reverse check
-    prepared_source = _prepared(source, config, "source")
-    target = _prepared(target, config, "target")
+    source_viewpoint = check_viewpoint(source_viewpoint, "source")
+    prepared_source = _prepared(source, config, "source", source_viewpoint)
+    target = _prepared(target, config, "target", target_viewpoint)
     prepare_seconds = time.perf_counter() - start
     result = _register_once(prepared_source, target, config)
     attempts = 1
     can_regrid = not isinstance(source, PreparedCloud)
     while not result.accepted and attempts <= config.acceptance.retries and can_regrid:
         turn = regrid_rotation(config.seed, attempts)
+        turned_viewpoint = None if source_viewpoint is None else transform_points(turn, source_viewpoint[None])[0]
+        regrid_start = time.perf_counter()
         try:
-            retry = _register_once(transform_points(turn, np.asarray(source, dtype=np.float64)),
-                                   target, config)
+            turned = prepare(transform_points(turn, np.asarray(source, dtype=np.float64)),
+                             config.features, "source", turned_viewpoint)
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
+        retry = _register_once(turned, target, config)
+        retry.timings["features"] += time.perf_counter() - regrid_start
         attempts += 1
         if retry.accepted:
             result = _undo_turn(retry, turn)
@@ -151,7 +168,7 @@ def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResu
         final=dataclasses.replace(result.final, source=result.final.source @ back))
 
 
-def _register_once(source: CloudInput, target: PreparedCloud,
+def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
                    config: RegorConfig) -> RegistrationResult:
     """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate."""
     rng = np.random.default_rng(config.seed)
@@ -165,8 +182,6 @@ def _register_once(source: CloudInput, target: PreparedCloud,
         timings[stage] = now - clock
         clock = now
 
-    src_cloud = _prepared(source, config, "source")
-    tgt_cloud = target
     lap("features")
 
     fs_tcd_points = config.initial.fs_tcd_points
@@ -179,7 +194,12 @@ def _register_once(source: CloudInput, target: PreparedCloud,
     init_tgt = tgt_cloud.points[matches.target_index]
     lap("matching")
 
-    initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng)
+    def plausible(T: np.ndarray) -> bool:
+        worst = visibility_figures(T, src_cloud, tgt_cloud, config.acceptance).worst
+        return worst is None or worst <= config.acceptance.max_free_space_violation
+
+    initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng,
+                            plausible if config.initial.free_space_selection else None)
     sizes = {"initial_matches": len(init_src), "initial_inliers": int(initial.inliers.sum())}
     lap("initial")
 
@@ -207,15 +227,19 @@ def _register_once(source: CloudInput, target: PreparedCloud,
     initial_inlier = (np.linalg.norm(transform_points(T, init_src) - init_tgt, axis=1)
                       < config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
-    accepted, reason = _quality_gate(num_inliers, fitness, num_feature_inliers, covariance, config)
+    verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
+                     num_feature_inliers, covariance, refined.target_index, config)
+    lap("verification")
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
-        transform=T, accepted=accepted, reason=reason, num_inliers=num_inliers,
+        transform=T, accepted=verdict.accepted, reason=verdict.reason, num_inliers=num_inliers,
         fitness=fitness, num_feature_inliers=num_feature_inliers, inlier_rmse=rmse, covariance=covariance,
         initial=Correspondences(init_src, init_tgt, initial_inlier),
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
-        selected=selected, stage_sizes=sizes, timings=timings)
+        selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
+        rivals=verdict.rivals,
+        ambiguity=ambiguity(verdict.rivals, config.acceptance.max_free_space_violation))
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig):
@@ -237,18 +261,3 @@ def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: Prep
         if len(alternative.source_index) > len(refined.source_index):
             return alternative, "initial"
     return refined, "regeneration"
-
-
-def _quality_gate(num_inliers: int, fitness: float, num_feature_inliers: int,
-                  covariance: np.ndarray, config: RegorConfig):
-    gate = config.acceptance
-    if num_inliers < gate.min_inliers:
-        return False, f"only {num_inliers} inliers (acceptance.min_inliers={gate.min_inliers})"
-    if np.linalg.eigvalsh(covariance).max() >= UNCONSTRAINED_VARIANCE:
-        return False, "the inliers do not constrain all six degrees of freedom (plane or line?)"
-    if fitness < gate.min_fitness:
-        return False, f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
-    if num_feature_inliers < gate.min_feature_inliers:
-        return False, (f"only {num_feature_inliers} feature matches agree with the pose "
-                       f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
-    return True, ""

@@ -66,7 +66,7 @@ class RegisterNode(Node):
         self._serials = {"source": 0, "target": 0}
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
-        self._prepared_serial = -1
+        self._prepared_serial = None  # (target message serial, viewpoint) of the cached map
         self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0,
                       "map_preparations": 0}
         self._stopping = False
@@ -167,21 +167,24 @@ class RegisterNode(Node):
                 config, settings = self.config, self.settings
             self._register(src, tgt, config, settings)
 
-    def _target_input(self, tgt: Cloud, config, settings):
+    def _target_input(self, tgt: Cloud, config, settings, viewpoint):
         """The target as registered: in map mode prepared once and cached per message."""
         if settings.mode != "map":
             return tgt.points
         cached = self._prepared_target
-        if cached is None or self._prepared_serial != tgt.serial or cached.config != config.features:
-            self._prepared_target = prepare_cloud(tgt.points, config, "target")
-            self._prepared_serial = tgt.serial
+        if cached is None or self._prepared_serial != (tgt.serial, viewpoint) or cached.config != config.features:
+            self._prepared_target = prepare_cloud(tgt.points, config, "target", viewpoint=viewpoint)
+            self._prepared_serial = (tgt.serial, viewpoint)
             self.stats["map_preparations"] += 1
             self.get_logger().info(f"map prepared: {len(self._prepared_target)} keypoints")
         return self._prepared_target
 
     def _register(self, src: Cloud, tgt: Cloud, config, settings) -> None:
+        source_viewpoint, target_viewpoint = settings.viewpoints()
         try:
-            result = register(src.points, self._target_input(tgt, config, settings), config)
+            target = self._target_input(tgt, config, settings, target_viewpoint)
+            result = register(src.points, target, config, source_viewpoint=source_viewpoint,
+                              target_viewpoint=target_viewpoint)
         except RegistrationError as exc:
             self._bad_input(f"registration skipped: {exc}")
             return

@@ -13,6 +13,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 from ..core.config import CHOICES as CORE_CHOICES
 from ..core.config import PRESETS, ConfigError, RegorConfig, _param
+from ..core.visibility import ORIGIN, parse_viewpoint
 
 QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
 MODE_CHOICES = ("pairs", "map")
@@ -36,6 +37,19 @@ class NodeSettings:
                                          "on aligned_cloud")
     publish_rejected: bool = _param(False, "also publish poses that fail the quality gate (status "
                                     "says so); off: a rejected pose is only reported")
+    source_viewpoint: str = _param("auto", "where the source sensor sat in the source message's frame, for "
+                                   "the free-space check: 'x, y, z' [m], 'none' (unknown: an aggregated "
+                                   "cloud), or auto (the frame's origin)")
+    target_viewpoint: str = _param("auto", "where the target sensor sat in the target message's frame: "
+                                   "'x, y, z' [m], 'none', or auto (the frame's origin in pairs mode; none "
+                                   "in map mode, a map has no single viewpoint)")
+
+    def viewpoints(self):
+        """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""
+        return (parse_viewpoint(self.source_viewpoint, "source_viewpoint", ORIGIN),
+                parse_viewpoint(self.target_viewpoint, "target_viewpoint",
+                                None if self.mode == "map" else ORIGIN))
+
 
 
 CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
@@ -90,6 +104,7 @@ def make_settings(values: Dict) -> NodeSettings:
         value = getattr(settings, f.name)
         if low is not None and not low <= value <= high:
             raise ConfigError(f"{f.name}={value!r} is outside its valid range [{low}, {high}]")
+    settings.viewpoints()  # raises on a malformed viewpoint
     return settings
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import datetime
 import json
 import os
@@ -18,6 +19,7 @@ import sys
 import time
 import traceback
 from collections import defaultdict
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
@@ -26,35 +28,67 @@ import numpy as np
 from ..core import RegorConfig, prepare_cloud, register
 from ..core.config import ConfigError
 from ..core.matching import match_features
+from ..core.visibility import ORIGIN
 from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_rigid_motion,
                             rotation_error_deg, translation_error)
 from .peers import DESCRIPTIONS, METHODS
 
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total", "inliers_final",
-              "final_count", "inliers_initial", "initial_count", "error"]
+              "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
+              "feature_inliers", "free_space_source", "free_space_target", "ambiguity", "rivals", "error"]
 
 
 def load_pairs(folder: Path, name_filter: Optional[str]):
-    """(index in pairs.json, name, kind, source, target, T_target_source) of each selected pair;
-    the index seeds the pair's random motion, so a filtered run moves a pair as a full run does."""
+    """Each selected pair; its index in pairs.json seeds the pair's random motion, so a filtered
+    run moves a pair as a full run does."""
     listing = json.loads((folder / "pairs.json").read_text())
     for index, entry in enumerate(listing):
         if name_filter and name_filter not in entry["name"]:
             continue
         d = folder / entry["name"]
-        yield (index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
-               np.loadtxt(d / "gt.txt"))
+        yield Pair(index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
+                   np.loadtxt(d / "gt.txt"), _viewpoint(entry.get("src_viewpoint", ORIGIN)),
+                   _viewpoint(entry.get("tgt_viewpoint", ORIGIN)))
 
 
-def evaluate_pair(name, kind, src, tgt, T_gt, methods, config: RegorConfig, seed) -> List[dict]:
+def _viewpoint(value):
+    return None if value is None else np.asarray(value, dtype=np.float64)
+
+
+@dataclass
+class Pair:
+    index: int
+    name: str
+    kind: str
+    src: np.ndarray
+    tgt: np.ndarray
+    T_gt: Optional[np.ndarray]              # T_target_source; None: different places, no true pose
+    src_viewpoint: Optional[np.ndarray]     # sensor position in the cloud's frame; None = unknown
+    tgt_viewpoint: Optional[np.ndarray]
+
+    def moved(self, seed: Optional[int]) -> "Pair":
+        """The pair with its source (and the source's viewpoint) moved by the seeded motion."""
+        if seed is None:
+            return self
+        M = random_rigid_motion([seed, self.index])
+        viewpoint = None if self.src_viewpoint is None else M[:3, :3] @ self.src_viewpoint + M[:3, 3]
+        return dataclasses.replace(self, src=self.src @ M[:3, :3].T + M[:3, 3],
+                                   T_gt=None if self.T_gt is None else self.T_gt @ np.linalg.inv(M),
+                                   src_viewpoint=viewpoint)
+
+
+def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
     """Every method on one pair; a crash counts as a failure with its error recorded."""
+    name, kind, src, tgt, T_gt = pair.name, pair.kind, pair.src, pair.tgt, pair.T_gt
     t0 = time.perf_counter()
-    source, target = prepare_cloud(src, config, "source"), prepare_cloud(tgt, config, "target")
+    source = prepare_cloud(src, config, "source", viewpoint=pair.src_viewpoint)
+    target = prepare_cloud(tgt, config, "target", viewpoint=pair.tgt_viewpoint)
     feature_seconds = time.perf_counter() - t0
     threshold = INLIER_THRESHOLDS[kind]
     nearest = match_features(source.features, target.features, 1, np.zeros(0, np.int64)).target_index
-    initial_correct = int(correct_mask(source.points, target.points[nearest], T_gt, threshold).sum())
+    initial_correct = 0 if T_gt is None else int(correct_mask(source.points, target.points[nearest],
+                                                                T_gt, threshold).sum())
     rows = []
     for method in methods:
         row = {"seed": seed, "pair": name, "kind": kind, "method": method, "success": False,
@@ -68,46 +102,60 @@ def evaluate_pair(name, kind, src, tgt, T_gt, methods, config: RegorConfig, seed
             rows.append(row)
             continue
         row.update({
-            "success": is_success(out.transform, T_gt, kind),
+            "success": T_gt is not None and is_success(out.transform, T_gt, kind),
             "accepted": "" if out.accepted is None else out.accepted,
-            "rotation_error_deg": rotation_error_deg(out.transform, T_gt),
-            "translation_error_m": translation_error(out.transform, T_gt),
+            "rotation_error_deg": np.nan if T_gt is None else rotation_error_deg(out.transform, T_gt),
+            "translation_error_m": np.nan if T_gt is None else translation_error(out.transform, T_gt),
             "seconds_registration": out.seconds,
             "seconds_total": out.seconds + (0.0 if out.includes_features else feature_seconds),
         })
-        if out.final is not None:
+        if out.figures is not None:
+            visibility = out.figures["visibility"]
+            row.update({"reason": out.figures["reason"], "num_inliers": out.figures["num_inliers"],
+                        "fitness": out.figures["fitness"], "feature_inliers": out.figures["feature_inliers"],
+                        "free_space_source": visibility["source_violation"],
+                        "free_space_target": visibility["target_violation"],
+                        "ambiguity": out.figures["ambiguity"],
+                        "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
+                                           f"{r['violation']}:{r['distance_deg']:.1f}"
+                                           for r in out.figures["rivals"])})
+        if out.final is not None and T_gt is not None:
             row["inliers_final"] = int(correct_mask(*out.final, T_gt, threshold).sum())
             row["final_count"] = len(out.final[0])
         rows.append(row)
     return rows
 
 
-def scene(name: str) -> str:
-    """The place a pair was scanned: its name without the fragment numbers."""
-    return "_".join(part for part in name.split("_") if not part.isdigit() and part != "ds")
+def place(name: str) -> str:
+    """Where a pair was scanned: its name without fragment or scan numbers (``hotel_umd3_15_16``
+    and ``hotel_umd_8_15`` are both maryland_hotel3)."""
+    parts = [part.rstrip("0123456789") for part in name.split("_")
+             if not part.isdigit() and part not in ("ds", "to")]
+    return "_".join(part for part in parts if part)
 
 
-def mismatched_report(pairs, presets: Dict, seeds) -> str:
-    """Register the source of every pair against the target of every pair of the same kind
-    scanned elsewhere; any accepted pose is a wrong pose published with confidence."""
-    lines = ["| source | target | accepted | reason |", "|---|---|---|---|"]
-    accepted = total = 0
-    for seed in seeds:
-        for i, name_a, kind, src, _, _ in pairs:
-            if seed is not None:
-                M = random_rigid_motion([seed, i])
-                src = src @ M[:3, :3].T + M[:3, 3]
-            for _, name_b, kind_b, _, tgt, _ in pairs:
-                if kind_b != kind or scene(name_b) == scene(name_a):
-                    continue
-                result = register(src, tgt, presets[kind].replace({"seed": seed or 0}))
-                total += 1
-                accepted += result.accepted
-                lines.append(f"| {name_a} | {name_b} | {result.accepted} | {result.reason} |")
-                print(f"[{total}] {name_a} -> {name_b}: {'ACCEPTED' if result.accepted else 'rejected'}",
-                      flush=True)
-    return f"Scans of different places: {accepted} of {total} poses accepted (all would be wrong).\n\n" + \
-        "\n".join(lines) + "\n"
+def same_place(a: str, b: str) -> bool:
+    """Conservative: ``avia_hku`` and ``avia_hkumb`` (one campus) count as one place."""
+    return a.startswith(b) or b.startswith(a)
+
+
+def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
+    """Each distinct source against one target of every other place of its kind (a different one
+    for each motion seed, round robin); there is no true pose, so any accepted pose is wrong."""
+    sources, targets = {}, defaultdict(dict)
+    for p in pairs:
+        sources.setdefault(p.src.tobytes().__hash__(), p)
+        targets[(p.kind, place(p.name))].setdefault(p.tgt.tobytes().__hash__(), p)
+    crossed = []
+    for a in sources.values():
+        for (kind, where), group in sorted(targets.items()):
+            if kind != a.kind or same_place(where, place(a.name)):
+                continue
+            group = list(group.values())
+            b = group[((seed or 0) + a.index) % len(group)]
+            crossed.append(Pair(a.index, f"{a.name} -> {b.name}", a.kind, a.src, b.tgt, None,
+                                a.src_viewpoint, b.tgt_viewpoint))
+    return crossed
 
 
 def _mean(values) -> float:
@@ -147,7 +195,7 @@ def summarise(rows: List[dict]) -> Dict:
             "p90_s": float(np.percentile([r["seconds_total"] for r in timed], 90)) if timed else float("nan"),
             "median_reg_s": float(np.median([r["seconds_registration"] for r in timed])) if timed else float("nan"),
             "accepted": len(accepted) if rs[0]["accepted"] != "" else None,
-            "false_accepts": sum(1 for r in accepted if not r["success"]) if accepted or rs[0]["accepted"] != "" else None,
+            "false_accepts": sum(1 for r in accepted if not r["success"]) if rs[0]["accepted"] != "" else None,
         }
     return summary
 
@@ -159,14 +207,14 @@ def _fmt(value, spec: str) -> str:
 def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -> str:
     kinds = sorted({k for _, k in summary if k != "all"}) + ["all"]
     lines = [header, "", "| kind | method | RR | successes | RE ° | TE cm | IP % | IN | INR % | "
-             "median s (reg) | p90 s | accepted (wrong) |", "|" + "---|" * 12]
+             "median s (reg) | p90 s | published correct / WRONG |", "|" + "---|" * 12]
     for kind in kinds:
         for method in methods:
             s = summary.get((method, kind))
             if s is None:
                 continue
             rr = f"{100 * s['recall']:.1f} %" + (f" ± {100 * s['recall_spread']:.1f}" if s["recall_spread"] else "")
-            acc = "–" if s["accepted"] is None else f"{s['accepted']} ({s['false_accepts']})"
+            acc = "–" if s["accepted"] is None else f"{s['accepted'] - s['false_accepts']} / {s['false_accepts']}"
             lines.append(
                 f"| {kind} | {method} | {rr} | {s['successes']}/{s['pairs']} | {_fmt(s['re'], '.2f')} | "
                 f"{_fmt(s['te_cm'], '.1f')} | {_fmt(100 * s['ip'], '.1f')} | {_fmt(s['in'], '.0f')} | "
@@ -190,6 +238,7 @@ def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -
 
 
 def plots(summary: Dict, methods: List[str], out: Path) -> None:
+    """Recall per kind, median time and correct final correspondences, as one PNG at ``out``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -211,7 +260,7 @@ def plots(summary: Dict, methods: List[str], out: Path) -> None:
         ax.set_title(label)
         ax.tick_params(axis="x", rotation=30)
     fig.tight_layout()
-    fig.savefig(out / "benchmark.png", dpi=90)
+    fig.savefig(out, dpi=90)
     plt.close(fig)
 
 
@@ -229,7 +278,8 @@ def machine() -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument("data", type=Path, help="folder with pairs.json and one folder per pair")
+    parser.add_argument("data", type=Path, nargs="+",
+                        help="folders with pairs.json and one folder per pair")
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated subset of: {', '.join(METHODS)}")
     parser.add_argument("--rotate", type=int, nargs="+", metavar="SEED",
@@ -240,63 +290,59 @@ def main(argv=None) -> int:
                         help="override a core parameter for every preset (repeatable)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
     parser.add_argument("--mismatched", action="store_true",
-                        help="instead: register each source against targets of other places (Regor "
-                             "only) and count the poses its quality gate accepts; writes mismatched.md")
+                        help="instead: register each source against targets of other places (one per "
+                             "place and seed) and count the poses each method's gate accepts: all wrong")
     args = parser.parse_args(argv)
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         parser.error(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
-    if not (args.data / "pairs.json").is_file():
-        parser.error(f"{args.data} has no pairs.json")
+    for folder in args.data:
+        if not (folder / "pairs.json").is_file():
+            parser.error(f"{folder} has no pairs.json")
     seeds = args.rotate or [None]
-    pairs = list(load_pairs(args.data, args.pairs))
+    pairs = [p for folder in args.data for p in load_pairs(folder, args.pairs)]
     overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
     try:  # overrides apply to the presets of the kinds present
-        presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p[2] for p in pairs}}
+        presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p.kind for p in pairs}}
     except ConfigError as exc:
         parser.error(str(exc))
-    if args.mismatched:
-        report = mismatched_report(pairs, presets, seeds)
-        args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "mismatched.md").write_text(report)
-        print(report.splitlines()[0])
-        return 0
+    runs = [(seed, pair) for seed in seeds
+            for pair in (cross_place_pairs(pairs, seed) if args.mismatched else pairs)]
     rows: List[dict] = []
     start = time.perf_counter()
-    total = len(pairs) * len(seeds)
+    total = len(runs)
     done = 0
-    for seed in seeds:
-        for index, name, kind, src, tgt, T_gt in pairs:
-            if seed is not None:
-                M = random_rigid_motion([seed, index])
-                src, T_gt = src @ M[:3, :3].T + M[:3, 3], T_gt @ np.linalg.inv(M)
-            pair_rows = evaluate_pair(name, kind, src, tgt, T_gt, methods, presets[kind], seed)
-            rows += pair_rows
-            done += 1
-            verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}" for r in pair_rows)
-            print(f"[{done}/{total} {time.perf_counter() - start:6.0f} s] seed {seed} {name}: {verdict}",
-                  flush=True)
+    for seed, pair in runs:
+        pair_rows = evaluate_pair(pair.moved(seed), methods, presets[pair.kind], seed)
+        rows += pair_rows
+        done += 1
+        verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}"
+                           f"{'/published' if r['accepted'] is True else ''}" for r in pair_rows)
+        print(f"[{done}/{total} {time.perf_counter() - start:6.0f} s] seed {seed} {pair.name}: {verdict}",
+              flush=True)
 
     summary = summarise(rows)
     command = "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
     header = (f"# regor_ros benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
-              f"Command: `{command}`  \nData: `{args.data}` ({len(pairs)} pairs), rotation seeds: "
+              f"Command: `{command}`  \nData: {', '.join(f'`{d}`' for d in args.data)} ({len(pairs)} pairs"
+              f"{'; cross-place: each source against one target of every other place per seed, no true pose' if args.mismatched else ''}), rotation seeds: "
               f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
               "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
-              "with FPFH included (registration alone in brackets); `accepted (wrong)`: poses that "
-              "passed the method's own quality gate, and how many of those were wrong.")
+              "with FPFH included (registration alone in brackets); `published correct / WRONG`: poses that "
+              "passed the method's own quality gate (published), correct and wrong.")
     report = markdown(summary, rows, methods, header)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "benchmark.md").write_text(report)
-    with open(args.out / "benchmark.csv", "w", newline="") as f:
+    stem = "mismatched" if args.mismatched else "benchmark"
+    (args.out / f"{stem}.md").write_text(report)
+    with open(args.out / f"{stem}.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    plots(summary, methods, args.out)
+    plots(summary, methods, args.out / f"{stem}.png")
     print(report)
-    print(f"wrote {args.out / 'benchmark.md'}, benchmark.csv and benchmark.png")
+    print(f"wrote {args.out / stem}.md, .csv and .png")
     return 0
 
 

@@ -106,14 +106,15 @@ def main(argv=None) -> int:
     parser.add_argument("target", type=Path, help="target cloud, (N, 3) .npy")
     parser.add_argument("--ground-truth", type=Path, help="4x4 T_target_source to compare with")
     parser.add_argument("--rotate", type=int, metavar="SEED",
-                        help="move the source by a random rigid motion first (truth adjusted)")
+                        help="turn the source by a random rotation about its sensor first (truth "
+                             "adjusted); it stays in its sensor frame, as the node's default viewpoint assumes")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the node")
     args = parser.parse_args(argv)
 
     src, tgt = np.load(args.source), np.load(args.target)
     T_gt = np.loadtxt(args.ground_truth) if args.ground_truth else None
     if args.rotate is not None:
-        M = random_rigid_motion(args.rotate)
+        M = random_rigid_motion(args.rotate, max_translation=0.0)
         src = src @ M[:3, :3].T + M[:3, 3]
         T_gt = T_gt @ np.linalg.inv(M) if T_gt is not None else None
 

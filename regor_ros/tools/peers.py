@@ -25,15 +25,19 @@ class MethodResult:
     final: Optional[tuple] = None           # (source, target) final correspondences
     initial: Optional[tuple] = None         # (source, target) initial correspondences
     accepted: Optional[bool] = None         # the method's own quality verdict, if it has one
+    figures: Optional[dict] = None          # Regor's verdict figures (RegistrationResult.summary())
 
 
 def _regor_variant(overrides: Dict) -> Callable:
     def run(src: PreparedCloud, tgt: PreparedCloud, raw_src, raw_tgt, config: RegorConfig, seed: int):
         cfg = config.replace({**overrides, "seed": seed})
-        r = register(raw_src if cfg.acceptance.retries else src, tgt, cfg)  # retries re-grid the raw source
+        viewpoint = None if src.range_image is None else src.range_image.viewpoint
+        # retries re-grid the raw source
+        r = register(raw_src if cfg.acceptance.retries else src, tgt, cfg, source_viewpoint=viewpoint)
         return MethodResult(r.transform, r.timings["total"] - r.timings["features"],
                             final=(r.final.source, r.final.target),
-                            initial=(r.initial.source, r.initial.target), accepted=r.accepted)
+                            initial=(r.initial.source, r.initial.target), accepted=r.accepted,
+                            figures=r.summary())
     return run
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from ..core import ConfigError, RegistrationError, RegorConfig, register
 from ..core.config import PRESETS
 from ..core.metrics import rotation_error_deg, translation_error
+from ..core.visibility import parse_viewpoint
 from .cloud_io import FORMATS, read_cloud
 
 
@@ -43,6 +44,9 @@ def print_text(rep: dict) -> None:
     print(f"inliers: {rep['num_inliers']} of {rep['source_keypoints']} source keypoints "
           f"(fitness {rep['fitness']:.3f}), RMSE {rep['inlier_rmse']:.4f} m, "
           f"{rep['feature_inliers']} feature matches agree")
+    visibility = rep["visibility"]
+    if visibility["worst"] is not None:
+        print(f"free space: {100 * visibility['worst']:.1f} % of a cloud inside space the other sensor saw through")
     print("stages: " + ", ".join(f"{k} {v}" for k, v in rep["stage_sizes"].items()))
     print("timings [s]: " + ", ".join(f"{k} {v:.3f}" for k, v in rep["timings"].items()))
     if "rotation_error_deg" in rep:
@@ -59,6 +63,10 @@ def main(argv=None) -> int:
     parser.add_argument("--preset", choices=PRESETS, default="indoor")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter, e.g. --set voxel_size=0.04 (repeatable)")
+    for side in ("source", "target"):
+        parser.add_argument(f"--{side}-viewpoint", default="auto", metavar="'X,Y,Z'|none",
+                            help=f"where the {side} sensor sat in its cloud's frame, for the free-space "
+                                 "check; 'none' for a cloud aggregated along a trajectory (default: the origin)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--output", metavar="T.txt", help="write the 4x4 matrix to this file")
     parser.add_argument("--picture", metavar="OUT.png", help="render the clouds before/after and the correspondences")
@@ -74,7 +82,9 @@ def main(argv=None) -> int:
                 truth = np.loadtxt(args.ground_truth).reshape(4, 4)
             except (OSError, ValueError) as exc:
                 raise RegistrationError(f"{args.ground_truth}: not a 4x4 matrix ({exc})") from None
-        result = register(source, target, config)
+        result = register(source, target, config,
+                          source_viewpoint=parse_viewpoint(args.source_viewpoint, "--source-viewpoint"),
+                          target_viewpoint=parse_viewpoint(args.target_viewpoint, "--target-viewpoint"))
     except (ConfigError, RegistrationError) as exc:
         print(f"regor-register: {exc}", file=sys.stderr)
         return 2

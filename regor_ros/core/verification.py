@@ -1,0 +1,148 @@
+"""Is this pose trustworthy? The quality gate: every check a pose must pass to be published.
+
+A wrong pose published with confidence is the worst outcome, so a pose is accepted only when
+- enough keypoints agree with it (inliers, fitness) and they fix all six degrees of freedom;
+- enough of the original feature matches agree with it (geometry alone aligns unrelated planes);
+- neither cloud puts surfaces into space the other sensor saw through (visibility);
+- the pose turned by 180 degrees about an axis of symmetry of the overlap does not explain the
+  clouds about as well (a symmetric room turned around passes every other check: when both
+  poses fit, neither can be trusted).
+Every figure is computed whatever the verdict, so a user (and the calibration) sees all of them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from .config import AcceptanceConfig, RegorConfig
+from .estimate import UNCONSTRAINED_VARIANCE, point_refine, to_matrix, transform_points
+from .metrics import rotation_error_deg
+from .features import PreparedCloud
+from .visibility import VisibilityFigures, free_space_check
+
+RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
+RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
+RIVAL_ITERATIONS = 10
+
+
+@dataclass
+class Rival:
+    """The pose turned about one symmetry axis of the overlap, refined like the pose."""
+
+    inlier_ratio: float          # its inliers / the pose's
+    feature_ratio: float         # its agreeing feature matches / the pose's
+    violation: Optional[float]   # its worst free-space figure
+    distance_deg: float          # its rotation from the pose after refinement
+
+
+@dataclass
+class Verdict:
+    accepted: bool
+    reason: str                     # why it was not accepted; empty when accepted
+    visibility: VisibilityFigures
+    rivals: List[Rival] = field(default_factory=list)
+
+
+def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
+                       gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None) -> VisibilityFigures:
+    """The visibility figures of T; ``matched_index`` lists the target keypoints of its inlier pairs."""
+    matched = None if matched_index is None else (target.points[matched_index], target.normals[matched_index])
+    return free_space_check(T, source.points, source.range_image, target.points, target.tree,
+                            target.range_image, matched, gate.free_space_margin,
+                            gate.free_space_margin_ratio, gate.free_space_min_seen)
+
+
+def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,
+           fitness: float, matches: tuple, num_feature_inliers: int, covariance: np.ndarray,
+           overlap_index: np.ndarray, config: RegorConfig) -> Verdict:
+    """Run every check on the pose T_target_source; the reason names the first that fails.
+    ``matches`` are the feature matches (source, target points), ``num_feature_inliers`` how many
+    of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
+    keypoints of the pose's inlier pairs (the overlap)."""
+    gate = config.acceptance
+    visibility = visibility_figures(T, source, target, gate, overlap_index)
+    reason = _structural_failure(num_inliers, fitness, covariance, gate)
+    rivals: List[Rival] = []
+    if not reason:  # the rivals cost a refinement each: only for poses that may be published
+        rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
+                                  source, target, config)
+        reason = _evidence_failure(num_feature_inliers, visibility.worst,
+                                   ambiguity(rivals, gate.max_free_space_violation), gate)
+    return Verdict(not reason, reason, visibility, rivals)
+
+
+def half_turns(points: np.ndarray) -> np.ndarray:
+    """(3, 4, 4): turns by 180 degrees about each principal axis of ``points``, through their
+    centroid: the symmetries of a box-like room, a corridor or a road."""
+    centre = points.mean(axis=0)
+    axes = np.linalg.svd(points - centre, full_matrices=False)[2]
+    rotations = 2.0 * axes[:, :, None] * axes[:, None, :] - np.eye(3)
+    return to_matrix(rotations, centre - rotations @ centre)
+
+
+def feature_support(T: np.ndarray, matches: tuple, threshold: float) -> int:
+    """Feature matches (source, target points) that the pose T brings within ``threshold``."""
+    source, target = matches
+    return int((np.linalg.norm(transform_points(T, source) - target, axis=1) < threshold).sum())
+
+
+def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, overlap: np.ndarray,
+                     source: PreparedCloud, target: PreparedCloud, config: RegorConfig) -> List[Rival]:
+    """The pose turned about each symmetry axis of the overlap and refined; the inliers of the
+    pose and its rivals are counted on the same RIVAL_POINTS source keypoints (for speed). A truly
+    symmetric scene also gives the rival feature support: symmetric places look alike."""
+    if len(overlap) < 3:
+        return []
+    est, gate = config.estimation, config.acceptance
+    sample = source.points[np.unique(np.linspace(0, len(source) - 1, RIVAL_POINTS).astype(np.int64))]
+    own = len(point_refine(T, sample, target.tree, est.inlier_threshold, 0).source_index)
+    rivals = []
+    for turn in half_turns(overlap):
+        refined = point_refine(turn @ T, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS)
+        rivals.append(Rival(len(refined.source_index) / max(own, 1),
+                            feature_support(refined.transform, matches, config.initial.inlier_threshold)
+                            / max(num_feature_inliers, 1),
+                            visibility_figures(refined.transform, source, target, gate,
+                                               refined.target_index).worst,
+                            rotation_error_deg(refined.transform, T)))
+    return rivals
+
+
+def ambiguity(rivals: List[Rival], max_violation: float) -> Optional[float]:
+    """How well the best rival that is distinct from the pose and passes the free-space check
+    explains the clouds, relative to the pose: the lesser of its point and feature support ratios
+    (None when there is no such rival)."""
+    ratios = [min(r.inlier_ratio, r.feature_ratio) for r in rivals if r.distance_deg > RIVAL_MIN_DEG
+              and (r.violation is None or r.violation <= max_violation)]
+    return max(ratios) if ratios else None
+
+
+def _structural_failure(num_inliers: int, fitness: float, covariance: np.ndarray,
+                        gate: AcceptanceConfig) -> str:
+    """The checks that make a pose measurable at all (not fitted to data)."""
+    if num_inliers < gate.min_inliers:
+        return f"only {num_inliers} inliers (acceptance.min_inliers={gate.min_inliers})"
+    if np.linalg.eigvalsh(covariance).max() >= UNCONSTRAINED_VARIANCE:
+        return "the inliers do not constrain all six degrees of freedom (plane or line?)"
+    if fitness < gate.min_fitness:
+        return f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
+    return ""
+
+
+def _evidence_failure(num_feature_inliers: int, violation: Optional[float], ambiguous: Optional[float],
+                      gate: AcceptanceConfig) -> str:
+    """The checks that tell a right pose from a wrong one (thresholds calibrated on held-out places)."""
+    if num_feature_inliers < gate.min_feature_inliers:
+        return (f"only {num_feature_inliers} feature matches agree with the pose "
+                f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
+    if violation is not None and violation > gate.max_free_space_violation:
+        return (f"{100 * violation:.0f} % of one cloud lies in space the other sensor saw through, or of "
+                f"the shared surface was seen from opposite sides (acceptance.max_free_space_violation="
+                f"{gate.max_free_space_violation}): the pose is wrong")
+    if ambiguous is not None and ambiguous >= gate.max_ambiguity:
+        return (f"the pose turned by 180 deg fits with {100 * ambiguous:.0f} % of its support "
+                f"(acceptance.max_ambiguity={gate.max_ambiguity}): a symmetric scene, neither "
+                "pose can be trusted")
+    return ""

@@ -1,0 +1,170 @@
+"""Visibility consistency of a pose: what one sensor saw through must stay empty in the other
+cloud, and a surface both sensors saw was seen from the same side.
+
+Every cloud was seen from a sensor. Along each ray the sensor measured, the space in front of
+the return is empty. Under a correct pose the other cloud's surfaces never sit in that space
+(beyond noise); a wrong pose that aligns walls and floors of box-like rooms, or a road, puts
+the other cloud's surfaces right inside the rooms and streets this sensor saw through. And
+surfaces are opaque: a wrong pose that puts two rooms back to back on a shared wall leaves the
+other cloud behind this one's walls, where free space cannot see it, but the matched wall is then
+seen from opposite sides.
+
+The seen free space is a spherical range image around the viewpoint holding the nearest return
+per bin. It is read conservatively, so that a correct pose is not blamed for sensing artefacts:
+- a bin's free depth is the nearest return among it and its 8 neighbours, so a point that falls
+  near a depth edge (foreground object, door frame) is measured against the nearer surface;
+- a bin with no return is unknown, never free (glass, black surfaces, sky, beyond range);
+- a point is in free space only when it is nearer than the free depth by a margin that grows with
+  range (``margin + margin_ratio * depth``): keypoints are voxel centroids and depth noise grows
+  with distance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from scipy.ndimage import minimum_filter
+
+from .config import ConfigError
+from .estimate import transform_points
+
+MIN_RANGE = 1e-3  # points this close to the viewpoint have no direction [m]
+GRAZING_COSINE = 0.2  # a surface seen more obliquely than this (78 deg) has no reliable side
+ORIGIN = (0.0, 0.0, 0.0)
+
+
+def parse_viewpoint(text: str, name: str, auto=ORIGIN):
+    """A viewpoint written by a user: 'auto' -> ``auto``, 'none' -> None (unknown), 'x, y, z' ->
+    a tuple in metres; ConfigError otherwise."""
+    word = str(text).strip().lower()
+    if word == "auto":
+        return auto
+    if word == "none":
+        return None
+    try:
+        values = tuple(float(v) for v in word.replace("[", " ").replace("]", " ").replace(",", " ").split())
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not np.isfinite(values).all():
+        raise ConfigError(f"{name}={text!r}: give 'x, y, z' in metres, 'none' (unknown) or 'auto'")
+    return values
+
+
+@dataclass
+class RangeImage:
+    """Nearest return per (elevation, azimuth) bin seen from ``viewpoint``, read as free depth."""
+
+    viewpoint: np.ndarray      # (3,) sensor position in the cloud's frame
+    free_depth: np.ndarray     # (rows, cols) float32: empty up to this range; 0 = unknown
+    resolution_deg: float
+    max_range: float           # farthest return [m]
+
+    @classmethod
+    def build(cls, points: np.ndarray, viewpoint, resolution_deg: float) -> "RangeImage":
+        viewpoint = np.asarray(viewpoint, dtype=np.float64).reshape(3)
+        rows, cols = _shape(resolution_deg)
+        ranges, index = _bins(points - viewpoint, resolution_deg, cols)
+        nearest = np.full(rows * cols, np.inf, dtype=np.float32)
+        np.minimum.at(nearest, index, ranges.astype(np.float32))
+        nearest = nearest.reshape(rows, cols)
+        # azimuth wraps around; elevation does not
+        free = minimum_filter(nearest, size=3, mode=("nearest", "wrap"))
+        free[~np.isfinite(nearest)] = 0.0
+        return cls(viewpoint, free, float(resolution_deg),
+                   float(ranges.max()) if len(ranges) else 0.0)
+
+    def violations(self, points: np.ndarray, margin: float, margin_ratio: float):
+        """(points that land on seen bins, of those the ones inside seen free space)."""
+        ranges, index = _bins(points - self.viewpoint, self.resolution_deg, self.free_depth.shape[1])
+        depth = self.free_depth.ravel()[index]
+        seen = depth > 0
+        inside = seen & (ranges < depth - margin - margin_ratio * depth)
+        return int(seen.sum()), int(inside.sum())
+
+
+def _shape(resolution_deg: float):
+    step = np.radians(resolution_deg)
+    return int(np.ceil(np.pi / step)) + 1, int(np.ceil(2 * np.pi / step))
+
+
+def _bins(offsets: np.ndarray, resolution_deg: float, cols: int):
+    """Ranges and flat bin indices of points given relative to the viewpoint (too-close ones dropped)."""
+    ranges = np.linalg.norm(offsets, axis=1)
+    keep = ranges > MIN_RANGE
+    offsets, ranges = offsets[keep], ranges[keep]
+    step = np.radians(resolution_deg)
+    azimuth = np.arctan2(offsets[:, 1], offsets[:, 0]) + np.pi
+    elevation = np.arcsin(np.clip(offsets[:, 2] / ranges, -1.0, 1.0)) + np.pi / 2
+    col = np.floor(azimuth / step).astype(np.int64) % cols
+    row = np.floor(elevation / step).astype(np.int64)
+    return ranges, row * cols + col
+
+
+@dataclass
+class VisibilityFigures:
+    """Fraction of the other cloud's keypoints inside each sensor's seen free space, and of the
+    matched surface points seen from opposite sides (None when a viewpoint it needs is unknown or
+    too few points count)."""
+
+    source_violation: Optional[float]  # target keypoints inside the source sensor's free space
+    target_violation: Optional[float]  # source keypoints inside the target sensor's free space
+    opposite_sides: Optional[float] = None  # matched points the two sensors saw from opposite sides
+    source_seen: int = 0               # target keypoints that landed on the source's seen bins
+    target_seen: int = 0
+
+    @property
+    def worst(self) -> Optional[float]:
+        known = [v for v in (self.source_violation, self.target_violation, self.opposite_sides)
+                 if v is not None]
+        return max(known) if known else None
+
+    def as_dict(self):
+        return {"source_violation": self.source_violation, "target_violation": self.target_violation,
+                "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
+                "target_seen": self.target_seen, "worst": self.worst}
+
+
+def _fraction(seen: int, inside: int, min_seen: int) -> Optional[float]:
+    return inside / seen if seen >= min_seen else None
+
+
+def opposite_sides(sensor_a: np.ndarray, sensor_b: np.ndarray, points: np.ndarray,
+                   normals: np.ndarray, min_seen: int) -> Optional[float]:
+    """Fraction of surface points (with unoriented normals) that the two sensors, in the points'
+    frame, see from opposite sides; views at grazing angles do not count."""
+    to_a, to_b = sensor_a - points, sensor_b - points
+    cos_a = (to_a * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_a, axis=1), MIN_RANGE)
+    cos_b = (to_b * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_b, axis=1), MIN_RANGE)
+    clear = (np.abs(cos_a) > GRAZING_COSINE) & (np.abs(cos_b) > GRAZING_COSINE)
+    return _fraction(int(clear.sum()), int((clear & (cos_a * cos_b < 0)).sum()), min_seen)
+
+
+def free_space_check(T: np.ndarray, source_points: np.ndarray, source_image: Optional[RangeImage],
+                     target_points: np.ndarray, target_tree, target_image: Optional[RangeImage],
+                     matched: Optional[tuple], margin: float, margin_ratio: float,
+                     min_seen: int) -> VisibilityFigures:
+    """Every visibility figure of T_target_source; a side without a viewpoint is skipped.
+
+    ``matched`` is (points, normals) of the target keypoints that the pose's inlier pairs match,
+    for the opposite-sides figure (which needs both viewpoints). Only target keypoints within the
+    source sensor's range of its position are tested, so a large map costs a ball query, not a
+    pass over the map.
+    """
+    source_seen = source_inside = target_seen = target_inside = 0
+    sides = None
+    if source_image is not None:
+        sensor_in_target = transform_points(T, source_image.viewpoint[None])[0]
+        near = target_tree.query_ball_point(sensor_in_target, source_image.max_range + margin)
+        if near:
+            in_source = transform_points(np.linalg.inv(T), target_points[np.asarray(near)])
+            source_seen, source_inside = source_image.violations(in_source, margin, margin_ratio)
+        if target_image is not None and matched is not None:
+            sides = opposite_sides(target_image.viewpoint, sensor_in_target, *matched, min_seen)
+    if target_image is not None:
+        target_seen, target_inside = target_image.violations(
+            transform_points(T, source_points), margin, margin_ratio)
+    return VisibilityFigures(
+        _fraction(source_seen, source_inside, min_seen) if source_image is not None else None,
+        _fraction(target_seen, target_inside, min_seen) if target_image is not None else None,
+        sides, source_seen, target_seen)

@@ -1,0 +1,121 @@
+"""The free-space check: synthetic rooms with known answers, one-sided checks, real cross-place poses."""
+import numpy as np
+import pytest
+
+from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
+from regor_ros.core.config import ConfigError
+from regor_ros.core.estimate import transform_points
+from regor_ros.core.verification import assess, visibility_figures
+from regor_ros.core.visibility import RangeImage, parse_viewpoint
+
+from conftest import PAIRS, load_pair
+
+INDOOR = RegorConfig.preset("indoor")
+
+
+def box_surface(low, high, spacing, rng, faces=("x-", "x+", "y-", "y+", "z-", "z+")):
+    """Points on the chosen faces of an axis-aligned box."""
+    low, high = np.asarray(low, float), np.asarray(high, float)
+    parts = []
+    for face in faces:
+        axis, side = "xyz".index(face[0]), face[1]
+        others = [a for a in range(3) if a != axis]
+        n = int(np.prod(high[others] - low[others]) / spacing ** 2)
+        pts = rng.uniform(low, high, (n, 3))
+        pts[:, axis] = low[axis] if side == "-" else high[axis]
+        parts.append(pts)
+    return np.vstack(parts)
+
+
+def room(spacing=0.02, seed=0):
+    """A 6 x 3.5 m room as a depth camera sees it (floor and walls, no ceiling) with a table and a
+    cabinet that break its symmetry."""
+    rng = np.random.default_rng(seed)
+    shell = box_surface((-3.0, -1.75, 0.0), (3.0, 1.75, 2.5), spacing, rng, ("x-", "x+", "y-", "y+", "z-"))
+    table = box_surface((1.5, 0.5, 0.0), (2.5, 1.3, 0.75), spacing, rng, ("x-", "y-", "z+"))
+    cabinet = box_surface((-2.9, -1.7, 0.0), (-2.3, -1.2, 1.8), spacing, rng, ("x+", "y+", "z+"))
+    return np.vstack([shell, table, cabinet])
+
+
+def matched(T, source):
+    """Feature matches that all agree with T (so the feature check passes)."""
+    return source.points, transform_points(T, source.points)
+
+
+def turn_about_z(degrees, centre=np.zeros(3)):
+    a = np.radians(degrees)
+    T = np.eye(4)
+    T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    T[:3, 3] = centre - T[:3, :3] @ centre
+    return T
+
+
+@pytest.fixture(scope="module")
+def rooms():
+    """Two scans of one 6 x 4 m room from sensors 1.2 m up, the source's frame turned and moved."""
+    walls = room()
+    source_sensor, target_sensor = np.array([0.8, -0.3, 1.2]), np.array([-1.0, 0.5, 1.2])
+    motion = turn_about_z(30.0)
+    motion[:3, 3] += [0.4, -0.2, 0.0]
+    source_points = transform_points(motion, walls)
+    source = prepare_cloud(source_points, INDOOR, viewpoint=transform_points(motion, source_sensor[None])[0])
+    target = prepare_cloud(room(seed=1), INDOOR, viewpoint=target_sensor)
+    return source, target, np.linalg.inv(motion)
+
+
+def test_true_pose_of_a_room_sees_no_surface_in_free_space(rooms):
+    source, target, T_true = rooms
+    figures = visibility_figures(T_true, source, target, INDOOR.acceptance)
+    assert figures.source_violation < 0.02 and figures.target_violation < 0.02
+    verdict = assess(T_true, source, target, 5000, 0.9, matched(T_true, source), len(source), np.eye(6) * 1e-4, np.arange(len(target)), INDOOR)
+    assert verdict.accepted, verdict.reason
+
+
+def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
+    source, target, T_true = rooms
+    wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
+    # every other check is given passing figures: only free space can reject it
+    verdict = assess(wrong, source, target, 5000, 0.9, matched(wrong, source), len(source), np.eye(6) * 1e-4, np.arange(len(target)), INDOOR)
+    assert not verdict.accepted
+    assert "saw through" in verdict.reason and "max_free_space_violation" in verdict.reason
+    assert verdict.visibility.worst > 0.2
+
+
+def test_a_side_without_viewpoint_is_skipped_and_no_viewpoint_skips_the_check(rooms):
+    source, target, T_true = rooms
+    map_like = prepare_cloud(room(seed=1), INDOOR, viewpoint=None)
+    wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
+    one_sided = visibility_figures(wrong, source, map_like, INDOOR.acceptance)
+    assert one_sided.target_violation is None and one_sided.source_violation > 0.2
+    blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
+    unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
+    assert unknown.worst is None
+    assert assess(wrong, blind, map_like, 5000, 0.9, matched(wrong, blind), len(blind), np.eye(6) * 1e-4, np.arange(len(target)), INDOOR).accepted
+
+
+def test_empty_bins_are_unknown_not_free():
+    image = RangeImage.build(np.array([[2.0, 0.0, 0.0], [2.0, 0.02, 0.0]]), (0, 0, 0), 1.0)
+    seen, inside = image.violations(np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]), 0.1, 0.0)
+    assert (seen, inside) == (1, 1)   # only the ray the sensor measured is known free
+
+
+def test_viewpoints_are_parsed_and_checked():
+    assert parse_viewpoint("auto", "v") == (0.0, 0.0, 0.0)
+    assert parse_viewpoint("none", "v") is None
+    assert parse_viewpoint("[1, 2.5, -3]", "v") == (1.0, 2.5, -3.0)
+    for bad in ("1, 2", "a, b, c", "1, 2, nan"):
+        with pytest.raises(ConfigError, match="x, y, z"):
+            parse_viewpoint(bad, "source_viewpoint")
+    src, tgt, _, _ = load_pair("3dmatch_redkitchen_5_6_ds")
+    with pytest.raises(RegistrationError, match="viewpoint"):
+        register(src, tgt, INDOOR, source_viewpoint=(0, 0))
+
+
+def test_a_map_without_viewpoint_still_registers_and_is_checked_one_sided(kitchen_pair):
+    src, tgt, T_gt, kind = kitchen_pair
+    target = prepare_cloud(tgt, INDOOR, viewpoint=None)
+    result = register(src, target, INDOOR, source_viewpoint=(0, 0, 0))
+    assert result.accepted, result.reason
+    assert result.visibility.target_violation is None
+    assert result.visibility.source_violation is not None and result.visibility.source_violation < 0.1
+    assert result.summary()["visibility"]["worst"] == result.visibility.source_violation
