@@ -32,4 +32,11 @@ echo "== colcon build"
 source .venv/bin/activate
 colcon --log-base build/colcon-log build --base-paths . --build-base build --install-base install \
   --event-handlers console_cohesion- summary- >/dev/null
+# the command-line tools on the virtual environment's PATH as well (ros2 run finds them in lib/)
+site=$(.venv/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+installed=$(ls -d "$PWD"/install/regor_ros/lib/python3*/site-packages)
+echo "$installed" > "$site/regor_ros_install.pth"
+for tool in regor-register regor-bench regor-calibrate-gate regor-pair-client; do
+  ln -sf "$PWD/install/regor_ros/lib/regor_ros/$tool" ".venv/bin/$tool"
+done
 echo "== ready: source .venv/bin/activate && source install/setup.bash"

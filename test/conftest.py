@@ -26,16 +26,20 @@ def load_pair(name):
             np.loadtxt(folder / "gt.txt"), kinds[name])
 
 
-def random_motion(seed):
-    """A random rotation about the sensor: the moved source stays in its sensor's frame (viewpoint at
-    the origin, as the node and register() assume by default) and the registration stays global."""
+def random_motion(seed, max_translation=2.0):
+    return random_rigid_motion(seed, max_translation)
+
+
+def sensor_turn(seed):
+    """A random rotation about the sensor: the turned source stays in its sensor's frame (viewpoint
+    at the origin, as the node and register() assume by default) and the registration stays global."""
     return random_rigid_motion(seed, max_translation=0.0)
 
 
 def moved_pair(name, seed):
     """The pair with its source turned by a random rotation about its sensor and the truth adjusted."""
     src, tgt, T_gt, kind = load_pair(name)
-    M = random_motion(seed)
+    M = sensor_turn(seed)
     return src @ M[:3, :3].T + M[:3, 3], tgt, T_gt @ np.linalg.inv(M), kind
 
 

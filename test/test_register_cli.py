@@ -1,5 +1,6 @@
 """regor-register end to end: every reader, a real pair from files, errors, the picture."""
 import json
+import shutil
 import struct
 import subprocess
 import sys
@@ -110,3 +111,12 @@ def test_bad_override_is_reported(tmp_path):
     np.save(tmp_path / "ok.npy", POINTS)
     proc = run_cli(tmp_path / "ok.npy", tmp_path / "ok.npy", "--set", "voxel_size=-3")
     assert proc.returncode == 2 and "features.voxel_size" in proc.stderr
+
+
+@pytest.mark.parametrize("tool", ["regor-register", "regor-bench", "regor-calibrate-gate"])
+def test_the_readme_commands_run_as_written_after_set_up(tool):
+    """scripts/setup.sh puts the tools on the virtual environment's PATH (the README's commands)."""
+    path = shutil.which(tool)
+    assert path, f"{tool} is not on PATH: run scripts/setup.sh and activate .venv"
+    done = subprocess.run([path, "--help"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "usage:" in done.stdout, done.stderr
