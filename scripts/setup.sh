@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything this repository needs on a fresh Debian machine without ROS: the Debian
-# package libusb-1.0-0 (open3d), a virtual environment .venv with requirements.txt, and a colcon
+# package libusb-1.0-0 (open3d), a virtual environment .venv with requirements.txt at the versions
+# pinned in constraints.txt, and a colcon
 # build of the package into build/ and install/. Safe to run again; it skips what is done.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,11 +20,11 @@ if [ ! -x .venv/bin/python ]; then
   "$PYTHON" -m venv .venv
 fi
 stamp=.venv/.requirements.sha
-want=$(sha256sum requirements.txt | cut -d' ' -f1)
+want=$(cat requirements.txt constraints.txt | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-  echo "== installing Python packages (requirements.txt)"
+  echo "== installing Python packages (requirements.txt, pinned by constraints.txt)"
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -r requirements.txt
+  .venv/bin/python -m pip install -q -r requirements.txt -c constraints.txt
   echo "$want" > "$stamp"
 fi
 

@@ -4,25 +4,26 @@ import csv
 from regor_ros.tools.calibrate_gate import Sample, fit, load_samples, main, score
 
 
-def sample(place, correct, features, violation, kind="indoor", rivals=()):
-    return Sample(kind, (place,), correct, True, features, violation, rivals)
+def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
+    return Sample(kind, (place,), correct, True, features, violation, opposite, rivals)
 
 
 def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
     samples = [sample("a", True, 40, 0.02), sample("a", True, 90, 0.05),
                sample("b", False, 80, 0.40), sample("b", False, 20, 0.01),   # caught by each check
-               sample("c", False, 120, 0.0, rivals=((0.95, 0.9, 0.0, 180.0),))]                 # a symmetric room
+               sample("c", False, 120, 0.0, rivals=((0.95, 0.9, 0.0, 0.0, 180.0),)),
+               sample("d", False, 120, 0.0, opposite=0.9)]                      # back to back                 # a symmetric room
     violation, features, max_ambiguity = fit(samples, "indoor")
     assert 0.05 <= violation < 0.40 and 20 < features <= 40 and max_ambiguity <= 0.95
     correct, published, wrong, n = score(samples, violation, features, max_ambiguity)
-    assert (correct, published, wrong, n) == (2, 2, 0, 5)
+    assert (correct, published, wrong, n) == (2, 2, 0, 6)
 
 
 def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_path, capsys):
-    fields = ["method", "kind", "pair", "success", "num_inliers", "fitness", "reason",
-              "feature_inliers", "free_space_source", "free_space_target", "rivals", "error"]
+    fields = ["method", "kind", "pair", "success", "num_inliers", "fitness", "reason", "feature_inliers",
+              "free_space_source", "free_space_target", "opposite_sides", "rivals", "error"]
     rows = [("3dmatch_kitchen_1_2", "True", 100, "0.01", "0.02", ""),
-            ("3dmatch_hotel_3_4", "True", 90, "0.03", "", "0.500:0.600:0.01:179.0"),
+            ("3dmatch_hotel_3_4", "True", 90, "0.03", "", "0.500:0.600:0.01:None:179.0"),
             ("3dmatch_kitchen_1_2 -> 3dmatch_hotel_3_4", "False", 95, "0.45", "0.1", "")]
     path = tmp_path / "benchmark.csv"
     with open(path, "w", newline="") as f:
@@ -31,7 +32,8 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
         for pair, success, features, vs, vt, rivals in rows:
             writer.writerow({"method": "regor", "kind": "indoor", "pair": pair, "success": success,
                              "num_inliers": 500, "fitness": 0.5, "reason": "", "feature_inliers": features,
-                             "free_space_source": vs, "free_space_target": vt, "rivals": rivals, "error": ""})
+                             "free_space_source": vs, "free_space_target": vt, "opposite_sides": "0.1",
+                             "rivals": rivals, "error": ""})
     samples = load_samples([path], "regor")
     assert [s.violation for s in samples] == [0.02, 0.03, 0.45]
     assert samples[1].ambiguity(0.3) == 0.5 and samples[1].ambiguity(0.005) is None

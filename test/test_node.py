@@ -82,6 +82,25 @@ def test_viewpoint_parameters_choose_the_sides_of_the_free_space_check(pairs_nod
         assert set_param(ros, "target_viewpoint", "auto").successful
 
 
+def test_diagnostics_are_published_at_a_steady_rate_with_the_last_verdict(pairs_node, ros):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    received = []
+    subscription = ros.create_subscription(DiagnosticArray, "/diagnostics", received.append, 10)
+    try:
+        src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 28)
+        pose, _ = ros.register_pair(src, tgt, TIMEOUT)
+        assert pose is not None
+        start = len(received)
+        assert ros.spin_until(lambda: len(received) >= start + 3, 10.0), "no steady /diagnostics"
+        status = received[-1].status[0]
+        assert status.level == DiagnosticStatus.OK and status.message == "pose published"
+        values = {kv.key: kv.value for kv in status.values}
+        assert values["last verdict"] == "accepted" and int(values["inliers"]) > 0
+        assert float(values["free-space violation"]) < 0.1 and "seconds total" in values
+    finally:
+        ros.destroy_subscription(subscription)
+
+
 def test_bad_cloud_is_skipped_and_the_next_pair_still_registers(pairs_node, ros):
     broken = PointCloud2(header=Header(frame_id="scan"), height=1, width=100, point_step=12,
                          row_step=1200, data=b"\x00" * 10,

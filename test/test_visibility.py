@@ -5,10 +5,13 @@ import pytest
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError
 from regor_ros.core.estimate import transform_points
+from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.verification import assess, visibility_figures
 from regor_ros.core.visibility import RangeImage, parse_viewpoint
 
-from conftest import PAIRS, load_pair
+from conftest import DATA, load_pair
+
+SCENES = DATA / "pairs_scenes"
 
 INDOOR = RegorConfig.preset("indoor")
 
@@ -119,3 +122,27 @@ def test_a_map_without_viewpoint_still_registers_and_is_checked_one_sided(kitche
     assert result.visibility.target_violation is None
     assert result.visibility.source_violation is not None and result.visibility.source_violation < 0.1
     assert result.summary()["visibility"]["worst"] == result.visibility.source_violation
+
+
+def scenes_pair_source(name, motion_seed):
+    """A pairs_scenes source moved by the benchmark's motion ``motion_seed``, and its sensor."""
+    import json
+    listing = [p["name"] for p in json.loads((SCENES / "pairs.json").read_text())]
+    motion = random_rigid_motion([motion_seed, listing.index(name)])
+    return transform_points(motion, np.load(SCENES / name / "src.npy")), motion[:3, 3]
+
+
+@pytest.mark.skipif(not SCENES.is_dir(), reason=f"{SCENES} is absent")
+def test_rooms_of_two_places_put_back_to_back_are_rejected_by_the_opposite_sides_check():
+    """A hotel room registered onto a study room, their shared wall seen from its two sides: no
+    surface of either lies in the other's free space, yet the pose is wrong (benchmark, motion 2)."""
+    hotel, sensor = scenes_pair_source("3dmatch_hotel_uc_2_34", 2)
+    study = np.load(SCENES / "3dmatch_studyroom_27_32" / "tgt.npy")
+    cfg = INDOOR.replace({"seed": 2})
+    blind = register(hotel, study, cfg.replace({"max_opposite_sides": 1.0, "min_feature_inliers": 0}),
+                     source_viewpoint=sensor)
+    assert blind.accepted, blind.reason   # every other check passes
+    assert blind.visibility.worst < 0.01
+    checked = register(hotel, study, cfg.replace({"min_feature_inliers": 0}), source_viewpoint=sensor)
+    assert not checked.accepted and "opposite sides" in checked.reason
+    assert checked.visibility.opposite_sides > 0.9

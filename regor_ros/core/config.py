@@ -109,6 +109,9 @@ class AcceptanceConfig:
                                       "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
     free_space_margin_ratio: float = _param(0.02, "range-proportional part of the free-space margin (depth noise grows "
                                             "with range)", 0.0, 1.0)
+    max_opposite_sides: float = _param(0.5, "largest fraction of the matched surface that the two sensors may have seen "
+                                       "from opposite sides (thin objects are; a majority means the clouds are back to "
+                                       "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)
     free_space_min_seen: int = _param(50, "fewest keypoints landing on seen bins for the free-space figure to count", 1, 1000000)
     max_ambiguity: float = _param(10.0, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
                                   "overlap (refined, passing the free-space check) keeps this fraction of its inliers: "

@@ -55,7 +55,7 @@ class RegistrationResult:
     attempts: int = 1  # registrations run: 1 + the acceptance.retries used
     visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
     rivals: List[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
-    ambiguity: Optional[float] = None  # inlier ratio of the best rival that passes the free-space check
+    ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
 
     def summary(self) -> Dict:
         """The verdict and quality figures as plain values, for logs, status messages and JSON."""
@@ -239,7 +239,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
         rivals=verdict.rivals,
-        ambiguity=ambiguity(verdict.rivals, config.acceptance.max_free_space_violation))
+        ambiguity=ambiguity(verdict.rivals, config.acceptance.max_free_space_violation,
+                            config.acceptance.max_opposite_sides))
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig):

@@ -34,6 +34,7 @@ class Rival:
     inlier_ratio: float          # its inliers / the pose's
     feature_ratio: float         # its agreeing feature matches / the pose's
     violation: Optional[float]   # its worst free-space figure
+    opposite_sides: Optional[float]  # its matched surface seen from opposite sides
     distance_deg: float          # its rotation from the pose after refinement
 
 
@@ -68,8 +69,9 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
     if not reason:  # the rivals cost a refinement each: only for poses that may be published
         rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
                                   source, target, config)
-        reason = _evidence_failure(num_feature_inliers, visibility.worst,
-                                   ambiguity(rivals, gate.max_free_space_violation), gate)
+        reason = _evidence_failure(num_feature_inliers, visibility,
+                                   ambiguity(rivals, gate.max_free_space_violation, gate.max_opposite_sides),
+                                   gate)
     return Verdict(not reason, reason, visibility, rivals)
 
 
@@ -101,21 +103,22 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
     rivals = []
     for turn in half_turns(overlap):
         refined = point_refine(turn @ T, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS)
+        visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
         rivals.append(Rival(len(refined.source_index) / max(own, 1),
                             feature_support(refined.transform, matches, config.initial.inlier_threshold)
                             / max(num_feature_inliers, 1),
-                            visibility_figures(refined.transform, source, target, gate,
-                                               refined.target_index).worst,
+                            visibility.worst, visibility.opposite_sides,
                             rotation_error_deg(refined.transform, T)))
     return rivals
 
 
-def ambiguity(rivals: List[Rival], max_violation: float) -> Optional[float]:
-    """How well the best rival that is distinct from the pose and passes the free-space check
+def ambiguity(rivals: List[Rival], max_violation: float, max_opposite: float) -> Optional[float]:
+    """How well the best rival that is distinct from the pose and passes the visibility checks
     explains the clouds, relative to the pose: the lesser of its point and feature support ratios
     (None when there is no such rival)."""
     ratios = [min(r.inlier_ratio, r.feature_ratio) for r in rivals if r.distance_deg > RIVAL_MIN_DEG
-              and (r.violation is None or r.violation <= max_violation)]
+              and (r.violation is None or r.violation <= max_violation)
+              and (r.opposite_sides is None or r.opposite_sides <= max_opposite)]
     return max(ratios) if ratios else None
 
 
@@ -131,16 +134,21 @@ def _structural_failure(num_inliers: int, fitness: float, covariance: np.ndarray
     return ""
 
 
-def _evidence_failure(num_feature_inliers: int, violation: Optional[float], ambiguous: Optional[float],
-                      gate: AcceptanceConfig) -> str:
+def _evidence_failure(num_feature_inliers: int, visibility: VisibilityFigures,
+                      ambiguous: Optional[float], gate: AcceptanceConfig) -> str:
     """The checks that tell a right pose from a wrong one (thresholds calibrated on held-out places)."""
     if num_feature_inliers < gate.min_feature_inliers:
         return (f"only {num_feature_inliers} feature matches agree with the pose "
                 f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
+    violation, opposite = visibility.worst, visibility.opposite_sides
     if violation is not None and violation > gate.max_free_space_violation:
-        return (f"{100 * violation:.0f} % of one cloud lies in space the other sensor saw through, or of "
-                f"the shared surface was seen from opposite sides (acceptance.max_free_space_violation="
-                f"{gate.max_free_space_violation}): the pose is wrong")
+        return (f"{100 * violation:.0f} % of one cloud lies in space the other sensor saw through "
+                f"(acceptance.max_free_space_violation={gate.max_free_space_violation}): surfaces "
+                "pass through each other, the pose is wrong")
+    if opposite is not None and opposite > gate.max_opposite_sides:
+        return (f"{100 * opposite:.0f} % of the shared surface was seen from opposite sides "
+                f"(acceptance.max_opposite_sides={gate.max_opposite_sides}): the clouds are back to "
+                "back, the pose is wrong")
     if ambiguous is not None and ambiguous >= gate.max_ambiguity:
         return (f"the pose turned by 180 deg fits with {100 * ambiguous:.0f} % of its support "
                 f"(acceptance.max_ambiguity={gate.max_ambiguity}): a symmetric scene, neither "

@@ -115,8 +115,8 @@ class VisibilityFigures:
 
     @property
     def worst(self) -> Optional[float]:
-        known = [v for v in (self.source_violation, self.target_violation, self.opposite_sides)
-                 if v is not None]
+        """The larger free-space fraction (None when neither side is known)."""
+        known = [v for v in (self.source_violation, self.target_violation) if v is not None]
         return max(known) if known else None
 
     def as_dict(self):

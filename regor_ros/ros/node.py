@@ -24,9 +24,11 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
+from diagnostic_msgs.msg import DiagnosticArray
 
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
 from ..core.estimate import transform_points
+from .diagnostics import Health, diagnostic_array
 from .messages import correspondence_markers, pose_stamped, pose_with_covariance, status_message
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
@@ -71,6 +73,7 @@ class RegisterNode(Node):
                       "map_preparations": 0}
         self._stopping = False
         self._warned = {}  # kind of bad input -> when it was last logged
+        self.health = Health(counters=self.stats)
 
         self.create_subscription(PointCloud2, "source_cloud", self._on_source,
                                  qos_profile(self.settings.source_qos))
@@ -81,6 +84,9 @@ class RegisterNode(Node):
         self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
         self.status_pub = self.create_publisher(String, "status", 10)
         self.aligned_pub = self.create_publisher(PointCloud2, "aligned_cloud", 1)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        if self.settings.diagnostics_period > 0:
+            self.create_timer(self.settings.diagnostics_period, self._publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name="regor_worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -99,6 +105,12 @@ class RegisterNode(Node):
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            array = diagnostic_array(self.health, self.get_fully_qualified_name(),
+                                     self.get_clock().now().to_msg())
+        self.diagnostics_pub.publish(array)
+
     # --- inputs: convert, keep only the newest ---
 
     def _on_source(self, msg: PointCloud2) -> None:
@@ -114,6 +126,7 @@ class RegisterNode(Node):
             self._bad_input(f"{which}_cloud skipped: {exc}")
             return
         with self._lock:
+            self.health.inputs[which] += 1
             self._serials[which] += 1
             previous = self._source if which == "source" else self._target
             if previous is not None and previous.serial > self._done[which] and \
@@ -133,6 +146,7 @@ class RegisterNode(Node):
         now = time.monotonic()
         with self._lock:
             self.stats["bad_inputs"] += 1
+            self.health.last_bad_input = text
             if now - self._warned.get(kind, -WARN_THROTTLE_S) < WARN_THROTTLE_S:
                 return
             self._warned[kind] = now
@@ -173,7 +187,11 @@ class RegisterNode(Node):
             return tgt.points
         cached = self._prepared_target
         if cached is None or self._prepared_serial != (tgt.serial, viewpoint) or cached.config != config.features:
-            self._prepared_target = prepare_cloud(tgt.points, config, "target", viewpoint=viewpoint)
+            self.health.preparing_map = True
+            try:
+                self._prepared_target = prepare_cloud(tgt.points, config, "target", viewpoint=viewpoint)
+            finally:
+                self.health.preparing_map = False
             self._prepared_serial = (tgt.serial, viewpoint)
             self.stats["map_preparations"] += 1
             self.get_logger().info(f"map prepared: {len(self._prepared_target)} keypoints")
@@ -186,13 +204,18 @@ class RegisterNode(Node):
             result = register(src.points, target, config, source_viewpoint=source_viewpoint,
                               target_viewpoint=target_viewpoint)
         except RegistrationError as exc:
+            self.health.last_error = str(exc)
             self._bad_input(f"registration skipped: {exc}")
             return
         except Exception as exc:  # keep the node alive whatever the input did
+            self.health.last_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"registration failed: {type(exc).__name__}: {exc}")
             return
-        self.stats["registrations"] += 1
-        self.stats["accepted_poses"] += int(result.accepted)
+        with self._lock:
+            self.stats["registrations"] += 1
+            self.stats["accepted_poses"] += int(result.accepted)
+            self.health.last_error = self.health.last_bad_input = ""
+            self.health.last_summary = result.summary()
         header = Header(stamp=src.header.stamp, frame_id=tgt.header.frame_id)
         extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
                  "mode": settings.mode, **self.stats}

@@ -37,6 +37,8 @@ class NodeSettings:
                                          "on aligned_cloud")
     publish_rejected: bool = _param(False, "also publish poses that fail the quality gate (status "
                                     "says so); off: a rejected pose is only reported")
+    diagnostics_period: float = _param(1.0, "seconds between DiagnosticArray messages on /diagnostics; 0 = none "
+                                       "(read only)", 0.0, 3600.0)
     source_viewpoint: str = _param("auto", "where the source sensor sat in the source message's frame, for "
                                    "the free-space check: 'x, y, z' [m], 'none' (unknown: an aggregated "
                                    "cloud), or auto (the frame's origin)")
@@ -54,7 +56,7 @@ class NodeSettings:
 
 CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
            "preset": PRESETS, **CORE_CHOICES}
-READ_ONLY = {"preset", "source_qos", "target_qos"}
+READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period"}
 
 
 def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescriptor:

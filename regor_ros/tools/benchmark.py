@@ -36,7 +36,7 @@ from .peers import DESCRIPTIONS, METHODS
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total", "inliers_final",
               "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
-              "feature_inliers", "free_space_source", "free_space_target", "ambiguity", "rivals", "error"]
+              "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals", "error"]
 
 
 def load_pairs(folder: Path, name_filter: Optional[str]):
@@ -115,9 +115,10 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
                         "fitness": out.figures["fitness"], "feature_inliers": out.figures["feature_inliers"],
                         "free_space_source": visibility["source_violation"],
                         "free_space_target": visibility["target_violation"],
+                        "opposite_sides": visibility["opposite_sides"],
                         "ambiguity": out.figures["ambiguity"],
                         "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
-                                           f"{r['violation']}:{r['distance_deg']:.1f}"
+                                           f"{r['violation']}:{r['opposite_sides']}:{r['distance_deg']:.1f}"
                                            for r in out.figures["rivals"])})
         if out.final is not None and T_gt is not None:
             row["inliers_final"] = int(correct_mask(*out.final, T_gt, threshold).sum())

@@ -5,7 +5,8 @@ Reads the per-registration CSVs that ``regor-bench`` writes (pairs with ground t
 whatever the verdict. Three thresholds are fitted for each kind (preset), since each kind is a
 different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``,
 ``acceptance.max_ambiguity`` and ``acceptance.min_feature_inliers``. The structural checks
-(min_inliers, min_fitness, six constrained degrees of freedom) are not fitted.
+(min_inliers, min_fitness, six constrained degrees of freedom) and the opposite-sides check
+(``acceptance.max_opposite_sides``, a majority rule) are not fitted.
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
 choices the thresholds in the middle of the tied ones (the widest margin on both sides). Leave one place (scene or sensor family) out:
@@ -40,15 +41,20 @@ class Sample:
     structural: bool         # passes the checks that are not fitted
     feature_inliers: int
     violation: Optional[float]  # worst free-space figure; None when no viewpoint is known
-    rivals: tuple = ()          # (inlier ratio, feature ratio, violation, distance) of the symmetric rivals
+    opposite: Optional[float] = None  # matched surface seen from opposite sides
+    rivals: tuple = ()          # Rival fields of the symmetric rivals
+
+    @property
+    def max_opposite(self) -> float:
+        return RegorConfig.preset(self.kind).acceptance.max_opposite_sides
 
     def ambiguity(self, max_violation: float) -> Optional[float]:
-        return ambiguity([Rival(*r) for r in self.rivals], max_violation)
+        return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
 
 
 def _rivals(text: str) -> tuple:
-    """'ratio:feature ratio:violation:deg;...' as written by regor-bench."""
-    return tuple((float(a), float(b), _number(c), float(d)) for a, b, c, d in
+    """'ratio:feature ratio:violation:opposite:deg;...' as written by regor-bench."""
+    return tuple((float(a), float(b), _number(c), _number(d), float(e)) for a, b, c, d, e in
                  (item.split(":") for item in text.split(";") if item))
 
 
@@ -71,7 +77,8 @@ def load_samples(paths: List[Path], method: str) -> List[Sample]:
                 kind, tuple(place(n) for n in names), row["success"] == "True",
                 int(row["num_inliers"]) >= gate.min_inliers and float(row["fitness"]) >= gate.min_fitness
                 and "six degrees" not in row["reason"],
-                int(row["feature_inliers"]), max(sides) if sides else None, _rivals(row.get("rivals", ""))))
+                int(row["feature_inliers"]), max(sides) if sides else None,
+                _number(row["opposite_sides"]), _rivals(row["rivals"])))
     return samples
 
 
@@ -82,6 +89,7 @@ def published(samples: List[Sample], violation: float, min_features: int, max_am
         ambiguous = s.ambiguity(violation)
         shown.append(s.structural and s.feature_inliers >= min_features
                      and (s.violation is None or s.violation <= violation)
+                     and (s.opposite is None or s.opposite <= s.max_opposite)
                      and (ambiguous is None or ambiguous < max_ambiguity))
     return np.array(shown, dtype=bool)
 

@@ -1,0 +1,70 @@
+"""The node's health as diagnostic_msgs/DiagnosticArray on /diagnostics, for robot monitors.
+
+Localization stacks watch /diagnostics (rqt_robot_monitor, diagnostic aggregators), not a JSON
+string. One status, refreshed at a steady rate: OK while the last pose was published, WARN while
+no input has arrived, the map is still being prepared or the last pose was withheld (with the
+gate's reason) or a malformed cloud arrived, ERROR when the last input could not be registered.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+STATUS_NAME = "regor_ros: registration"
+
+
+@dataclass
+class Health:
+    """What the node knows about its own state, updated by the worker thread."""
+
+    inputs: Dict[str, int] = field(default_factory=lambda: {"source": 0, "target": 0})  # messages received
+    preparing_map: bool = False
+    last_error: str = ""                   # why the last input could not be registered
+    last_bad_input: str = ""               # the last malformed cloud since the last registration
+    last_summary: Optional[dict] = None    # RegistrationResult.summary() of the last registration
+    counters: Dict[str, int] = field(default_factory=dict)
+
+
+def _value(v) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
+    """The status and its key values for the current health."""
+    level, message = DiagnosticStatus.OK, "pose published"
+    missing = [topic for topic, count in health.inputs.items() if count == 0]
+    summary = health.last_summary
+    if health.last_error:
+        level, message = DiagnosticStatus.ERROR, f"last input not registered: {health.last_error}"
+    elif health.last_bad_input:
+        level, message = DiagnosticStatus.WARN, f"bad input: {health.last_bad_input}"
+    elif missing:
+        level, message = DiagnosticStatus.WARN, "no input yet on " + " and ".join(f"{t}_cloud" for t in missing)
+    elif health.preparing_map:
+        level, message = DiagnosticStatus.WARN, "map not prepared yet"
+    elif summary is None:
+        level, message = DiagnosticStatus.WARN, "waiting for a registration"
+    elif not summary["accepted"]:
+        level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
+    values = {f"{topic} clouds received": n for topic, n in health.inputs.items()}
+    values.update(health.counters)
+    if summary is not None:
+        visibility = summary["visibility"]
+        values.update({
+            "last verdict": "accepted" if summary["accepted"] else "rejected",
+            "inliers": summary["num_inliers"], "fitness": summary["fitness"],
+            "feature inliers": summary["feature_inliers"],
+            "free-space violation": visibility["worst"],
+            "opposite sides": visibility["opposite_sides"], "ambiguity": summary["ambiguity"],
+            **{f"seconds {stage}": seconds for stage, seconds in summary["timings"].items()},
+        })
+    return DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id=node_name,
+                            values=[KeyValue(key=k, value=_value(v)) for k, v in values.items()])
+
+
+def diagnostic_array(health: Health, node_name: str, stamp) -> DiagnosticArray:
+    array = DiagnosticArray(status=[diagnostic_status(health, node_name)])
+    array.header.stamp = stamp
+    return array

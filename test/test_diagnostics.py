@@ -1,0 +1,30 @@
+"""The /diagnostics status for each state of the node (levels and messages a monitor shows)."""
+from diagnostic_msgs.msg import DiagnosticStatus
+
+from regor_ros.ros.diagnostics import Health, diagnostic_status
+
+SUMMARY = {"accepted": False, "reason": "only 12 feature matches agree with the pose", "num_inliers": 300,
+           "fitness": 0.2, "feature_inliers": 12, "ambiguity": None, "timings": {"total": 1.5},
+           "visibility": {"worst": 0.01, "opposite_sides": 0.0}}
+
+
+def status(**state):
+    return diagnostic_status(Health(**state), "/register_node")
+
+
+def test_each_state_has_its_level_and_reason():
+    waiting = status()
+    assert waiting.level == DiagnosticStatus.WARN and "source_cloud and target_cloud" in waiting.message
+    preparing = status(inputs={"source": 1, "target": 1}, preparing_map=True)
+    assert preparing.level == DiagnosticStatus.WARN and "map" in preparing.message
+    withheld = status(inputs={"source": 2, "target": 1}, last_summary=SUMMARY)
+    assert withheld.level == DiagnosticStatus.WARN and "12 feature matches" in withheld.message
+    published = status(inputs={"source": 2, "target": 1}, last_summary={**SUMMARY, "accepted": True})
+    assert published.level == DiagnosticStatus.OK
+    malformed = status(inputs={"source": 3, "target": 1}, last_summary=SUMMARY, last_bad_input="no x field")
+    assert malformed.level == DiagnosticStatus.WARN and "no x field" in malformed.message
+    failed = status(inputs={"source": 3, "target": 1}, last_error="source: the cloud is empty")
+    assert failed.level == DiagnosticStatus.ERROR and "empty" in failed.message
+    values = {kv.key: kv.value for kv in withheld.values}
+    assert values["last verdict"] == "rejected" and values["seconds total"] == "1.5"
+    assert values["source clouds received"] == "2"
