@@ -1,4 +1,5 @@
-"""Start register_node with a preset parameter file and the two input topics remapped.
+"""Start register_node with a preset parameter file and the two input topics remapped, with the
+package's Fast DDS profile for large clouds (large_data:=false to keep the environment's own).
 
 ros2 launch regor_ros register.launch.py preset:=outdoor source:=/velodyne_points target:=/map
 """
@@ -6,7 +7,8 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
@@ -23,6 +25,11 @@ def generate_launch_description():
         DeclareLaunchArgument("target", default_value="target_cloud",
                               description="PointCloud2 topic of the scan or map to localise in"),
         DeclareLaunchArgument("mode", default_value="pairs", description="pairs or map"),
+        DeclareLaunchArgument("large_data", default_value="true",
+                              description="use config/fastdds_large_data.xml (the driver should too)"),
+        *[SetEnvironmentVariable(variable, os.path.join(config_dir, "fastdds_large_data.xml"),
+                                 condition=IfCondition(LaunchConfiguration("large_data")))
+          for variable in ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")],
         Node(
             package="regor_ros",
             executable="register_node",

@@ -6,12 +6,13 @@ import pytest
 
 from regor_ros.tools.benchmark import main, summarise
 
-from conftest import PAIRS
+from conftest import PAIRS, require_shared_data
 
 TWO = ["3dmatch_redkitchen_5_6_ds", "stanford_bunny_045_to_000"]
 
 
 def pair_folder(root, names):
+    require_shared_data("the benchmark tests")
     folder = root / "pairs"
     folder.mkdir()
     listing = [p for p in json.loads((PAIRS / "pairs.json").read_text()) if p["name"] in names]

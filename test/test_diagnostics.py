@@ -15,16 +15,16 @@ def status(**state):
 def test_each_state_has_its_level_and_reason():
     waiting = status()
     assert waiting.level == DiagnosticStatus.WARN and "source_cloud and target_cloud" in waiting.message
-    preparing = status(inputs={"source": 1, "target": 1}, preparing_map=True)
+    preparing = status(counters={"source_clouds": 1, "target_clouds": 1}, preparing_map=True)
     assert preparing.level == DiagnosticStatus.WARN and "map" in preparing.message
-    withheld = status(inputs={"source": 2, "target": 1}, last_summary=SUMMARY)
+    withheld = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary=SUMMARY)
     assert withheld.level == DiagnosticStatus.WARN and "12 feature matches" in withheld.message
-    published = status(inputs={"source": 2, "target": 1}, last_summary={**SUMMARY, "accepted": True})
+    published = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary={**SUMMARY, "accepted": True})
     assert published.level == DiagnosticStatus.OK
-    malformed = status(inputs={"source": 3, "target": 1}, last_summary=SUMMARY, last_bad_input="no x field")
+    malformed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_summary=SUMMARY, last_bad_input="no x field")
     assert malformed.level == DiagnosticStatus.WARN and "no x field" in malformed.message
-    failed = status(inputs={"source": 3, "target": 1}, last_error="source: the cloud is empty")
+    failed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_error="source: the cloud is empty")
     assert failed.level == DiagnosticStatus.ERROR and "empty" in failed.message
     values = {kv.key: kv.value for kv in withheld.values}
     assert values["last verdict"] == "rejected" and values["seconds total"] == "1.5"
-    assert values["source clouds received"] == "2"
+    assert values["source_clouds"] == "2"

@@ -9,7 +9,7 @@ from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.verification import assess, visibility_figures
 from regor_ros.core.visibility import RangeImage, parse_viewpoint
 
-from conftest import DATA, load_pair
+from conftest import DATA, load_pair, require_shared_data
 
 SCENES = DATA / "pairs_scenes"
 
@@ -132,10 +132,10 @@ def scenes_pair_source(name, motion_seed):
     return transform_points(motion, np.load(SCENES / name / "src.npy")), motion[:3, 3]
 
 
-@pytest.mark.skipif(not SCENES.is_dir(), reason=f"{SCENES} is absent")
 def test_rooms_of_two_places_put_back_to_back_are_rejected_by_the_opposite_sides_check():
     """A hotel room registered onto a study room, their shared wall seen from its two sides: no
     surface of either lies in the other's free space, yet the pose is wrong (benchmark, motion 2)."""
+    require_shared_data("this cross-place pair")
     hotel, sensor = scenes_pair_source("3dmatch_hotel_uc_2_34", 2)
     study = np.load(SCENES / "3dmatch_studyroom_27_32" / "tgt.npy")
     cfg = INDOOR.replace({"seed": 2})

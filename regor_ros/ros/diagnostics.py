@@ -19,12 +19,11 @@ STATUS_NAME = "regor_ros: registration"
 class Health:
     """What the node knows about its own state, updated by the worker thread."""
 
-    inputs: Dict[str, int] = field(default_factory=lambda: {"source": 0, "target": 0})  # messages received
     preparing_map: bool = False
     last_error: str = ""                   # why the last input could not be registered
     last_bad_input: str = ""               # the last malformed cloud since the last registration
     last_summary: Optional[dict] = None    # RegistrationResult.summary() of the last registration
-    counters: Dict[str, int] = field(default_factory=dict)
+    counters: Dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
 
 
 def _value(v) -> str:
@@ -34,7 +33,7 @@ def _value(v) -> str:
 def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
     """The status and its key values for the current health."""
     level, message = DiagnosticStatus.OK, "pose published"
-    missing = [topic for topic, count in health.inputs.items() if count == 0]
+    missing = [topic for topic in ("source", "target") if not health.counters.get(f"{topic}_clouds")]
     summary = health.last_summary
     if health.last_error:
         level, message = DiagnosticStatus.ERROR, f"last input not registered: {health.last_error}"
@@ -48,8 +47,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
-    values = {f"{topic} clouds received": n for topic, n in health.inputs.items()}
-    values.update(health.counters)
+    values = dict(health.counters)
     if summary is not None:
         visibility = summary["visibility"]
         values.update({

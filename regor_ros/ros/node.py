@@ -69,8 +69,8 @@ class RegisterNode(Node):
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_serial = None  # (target message serial, viewpoint) of the cached map
-        self.stats = {"registrations": 0, "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0,
-                      "map_preparations": 0}
+        self.stats = {"source_clouds": 0, "target_clouds": 0, "registrations": 0, "accepted_poses": 0,
+                      "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
         self._stopping = False
         self._warned = {}  # kind of bad input -> when it was last logged
         self.health = Health(counters=self.stats)
@@ -126,7 +126,7 @@ class RegisterNode(Node):
             self._bad_input(f"{which}_cloud skipped: {exc}")
             return
         with self._lock:
-            self.health.inputs[which] += 1
+            self.stats[f"{which}_clouds"] += 1
             self._serials[which] += 1
             previous = self._source if which == "source" else self._target
             if previous is not None and previous.serial > self._done[which] and \
