@@ -25,6 +25,9 @@ def generate_launch_description():
         DeclareLaunchArgument("target", default_value="target_cloud",
                               description="PointCloud2 topic of the scan or map to localise in"),
         DeclareLaunchArgument("mode", default_value="pairs", description="pairs or map"),
+        DeclareLaunchArgument("rviz", default_value="false",
+                              description="also start RViz with rviz/regor.rviz (clouds, aligned cloud, "
+                                          "correspondences, pose; the target frame is the fixed frame)"),
         DeclareLaunchArgument("large_data", default_value="true",
                               description="use config/fastdds_large_data.xml (the driver should too)"),
         *[SetEnvironmentVariable(variable, os.path.join(config_dir, "fastdds_large_data.xml"),
@@ -38,5 +41,11 @@ def generate_launch_description():
             parameters=[params_file, {"mode": LaunchConfiguration("mode")}],
             remappings=[("source_cloud", LaunchConfiguration("source")),
                         ("target_cloud", LaunchConfiguration("target"))],
+        ),
+        Node(
+            package="rviz2",
+            executable="rviz2",
+            arguments=["-d", os.path.join(get_package_share_directory("regor_ros"), "rviz", "regor.rviz")],
+            condition=IfCondition(LaunchConfiguration("rviz")),
         ),
     ])

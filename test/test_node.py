@@ -170,3 +170,18 @@ def test_colcon_installs_the_executable_configs_launch_file_and_demo(install):
     compile(launch.read_text(), str(launch), "exec")  # launch_ros has no pip wheel: syntax only
     assert {p.name for p in (share / "demo").iterdir()} == {"src.npy", "tgt.npy", "gt.txt"}
     assert (share / "package.xml").exists()
+    assert (share / "config" / "fastdds_large_data.xml").read_text().count("<transport_id>") >= 4
+
+
+def test_the_rviz_configuration_shows_every_output_of_the_node(install):
+    import yaml
+    share = install / "regor_ros" / "share" / "regor_ros"
+    config = yaml.safe_load((share / "rviz" / "regor.rviz").read_text())
+    topics = {d["Topic"]["Value"]: d["Class"] for d in config["Visualization Manager"]["Displays"] if "Topic" in d}
+    assert topics == {"/target_cloud": "rviz_default_plugins/PointCloud2",
+                      "/source_cloud": "rviz_default_plugins/PointCloud2",
+                      "/aligned_cloud": "rviz_default_plugins/PointCloud2",
+                      "/correspondences": "rviz_default_plugins/MarkerArray",
+                      "/pose_with_covariance": "rviz_default_plugins/PoseWithCovariance"}
+    launch = (share / "launch" / "register.launch.py").read_text()   # launch_ros has no pip wheel
+    assert 'DeclareLaunchArgument("rviz"' in launch and '"rviz", "regor.rviz"' in launch

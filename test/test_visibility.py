@@ -81,7 +81,7 @@ def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
     verdict = assess(wrong, source, target, 5000, 0.9, matched(wrong, source), len(source), np.eye(6) * 1e-4, np.arange(len(target)), INDOOR)
     assert not verdict.accepted
     assert "saw through" in verdict.reason and "max_free_space_violation" in verdict.reason
-    assert verdict.visibility.worst > 0.2
+    assert verdict.visibility.worst > 0.1   # the true pose: under 0.02
 
 
 def test_a_side_without_viewpoint_is_skipped_and_no_viewpoint_skips_the_check(rooms):
@@ -89,7 +89,7 @@ def test_a_side_without_viewpoint_is_skipped_and_no_viewpoint_skips_the_check(ro
     map_like = prepare_cloud(room(seed=1), INDOOR, viewpoint=None)
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
     one_sided = visibility_figures(wrong, source, map_like, INDOOR.acceptance)
-    assert one_sided.target_violation is None and one_sided.source_violation > 0.2
+    assert one_sided.target_violation is None and one_sided.source_violation > 0.1
     blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
     unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
     assert unknown.worst is None

@@ -101,10 +101,12 @@ class AcceptanceConfig:
 
     min_inliers: int = _param(40, "fewest final inlier keypoints of an accepted pose", 0, 1000000)
     min_fitness: float = _param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
-    min_feature_inliers: int = _param(70, "fewest initial feature matches within initial.inlier_threshold of "
-                                      "the pose; geometry alone aligns planes of unrelated rooms", 0, 1000000)
-    max_free_space_violation: float = _param(0.3, "largest fraction of one cloud's keypoints that may sit in space the other "
-                                             "cloud's sensor saw through (free-space check; needs a viewpoint; 1 = off)", 0.0, 1.0)
+    min_feature_inliers: int = _param(65, "fewest initial feature matches within initial.inlier_threshold of "
+                                      "the pose; geometry alone aligns planes of unrelated rooms (calibrated: "
+                                      "regor-calibrate-gate)", 0, 1000000)
+    max_free_space_violation: float = _param(0.06, "largest fraction of one cloud's keypoints that may sit in space the other "
+                                             "cloud's sensor saw through (free-space check; needs a viewpoint; 1 = off; "
+                                             "calibrated: regor-calibrate-gate)", 0.0, 1.0)
     free_space_margin: float = _param(0.15, "a keypoint is in seen free space only when nearer than the seen surface by more "
                                       "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
     free_space_margin_ratio: float = _param(0.02, "range-proportional part of the free-space margin (depth noise grows "
@@ -113,9 +115,10 @@ class AcceptanceConfig:
                                        "from opposite sides (thin objects are; a majority means the clouds are back to "
                                        "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)
     free_space_min_seen: int = _param(50, "fewest keypoints landing on seen bins for the free-space figure to count", 1, 1000000)
-    max_ambiguity: float = _param(10.0, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
-                                  "overlap (refined, passing the free-space check) keeps this fraction of its inliers: "
-                                  "a symmetric room; 10 = off", 0.0, 10.0)
+    max_ambiguity: float = _param(0.8, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
+                                  "overlap (refined, passing the visibility checks) keeps this fraction of both its point "
+                                  "and its feature support: a symmetric room; 10 = off (calibrated: regor-calibrate-gate)",
+                                  0.0, 10.0)
     reverse_check: bool = _param(False, "also register target to source and accept only if that returns the inverse "
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
                                  "registration per accepted pose; deviation)")
@@ -155,7 +158,8 @@ class RegorConfig:
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=50, free_space_margin=0.9),
+                acceptance=AcceptanceConfig(min_feature_inliers=25, max_free_space_violation=0.04,
+                                            free_space_margin=0.9),
             )
         if name == "object":
             s = 0.06  # object scale relative to indoor

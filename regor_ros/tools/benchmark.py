@@ -34,7 +34,7 @@ from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_
 from .peers import DESCRIPTIONS, METHODS
 
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
-              "translation_error_m", "seconds_registration", "seconds_total", "inliers_final",
+              "translation_error_m", "seconds_registration", "seconds_total", "seconds_verification", "inliers_final",
               "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
               "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals", "error"]
 
@@ -112,6 +112,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
         if out.figures is not None:
             visibility = out.figures["visibility"]
             row.update({"reason": out.figures["reason"], "num_inliers": out.figures["num_inliers"],
+                        "seconds_verification": out.figures["timings"]["verification"],
                         "fitness": out.figures["fitness"], "feature_inliers": out.figures["feature_inliers"],
                         "free_space_source": visibility["source_violation"],
                         "free_space_target": visibility["target_violation"],
