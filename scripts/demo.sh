@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The main job on a bundled real pair: set up, start the installed register_node, publish the
-# pair to it (source moved by a random rigid motion), print the pose and its error.
+# pair to it (source turned by a random rotation about its sensor), print the pose and its error.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/environment.sh

@@ -32,7 +32,7 @@ DEMO_PAIR = "3dmatch_redkitchen_5_6_ds"  # bundled in demo/
 def require_shared_data(what: str) -> None:
     """Skip the calling test (fail under CI) when the shared real data is absent."""
     if not PAIRS.is_dir():
-        message = f"{what} needs the shared real data in {DATA}, which is absent (set REGOR_DATA)"
+        message = f"{what}: the shared real data is not in {DATA} (set REGOR_DATA)"
         if os.environ.get("CI", "").lower() == "true":
             pytest.fail(message)
         pytest.skip(message)
