@@ -3,11 +3,13 @@
 A wrong pose published with confidence is the worst outcome, so a pose is accepted only when
 - enough keypoints agree with it (inliers, fitness) and they fix all six degrees of freedom;
 - enough of the original feature matches agree with it (geometry alone aligns unrelated planes);
-- neither cloud puts surfaces into space the other sensor saw through (visibility);
+- neither cloud puts surfaces into space the other sensor saw through, and the surface both saw
+  was seen from the same side (visibility);
 - the pose turned by 180 degrees about an axis of symmetry of the overlap does not explain the
   clouds about as well (a symmetric room turned around passes every other check: when both
   poses fit, neither can be trusted).
-Every figure is computed whatever the verdict, so a user (and the calibration) sees all of them.
+Every figure is computed whatever the verdict (the rivals once the pose is measurable), so a user,
+and the calibration (regor-calibrate-gate), sees all of them.
 """
 from __future__ import annotations
 
@@ -18,8 +20,8 @@ import numpy as np
 
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, point_refine, to_matrix, transform_points
-from .metrics import rotation_error_deg
 from .features import PreparedCloud
+from .metrics import rotation_error_deg
 from .visibility import VisibilityFigures, free_space_check
 
 RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it

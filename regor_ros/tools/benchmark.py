@@ -25,7 +25,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ..core import RegorConfig, prepare_cloud, register
+from ..core import RegorConfig, prepare_cloud
 from ..core.config import ConfigError
 from ..core.matching import match_features
 from ..core.visibility import ORIGIN
