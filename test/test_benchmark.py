@@ -78,3 +78,17 @@ def test_summary_recall_spread_inr_and_false_accepts():
     assert s["ip"] == 0.5 and s["inr"] == pytest.approx(300.0) and s["fmr"] == 100.0
     assert s["accepted"] == 3 and s["false_accepts"] == 1
     assert s["re"] == 2.0 and s["te_cm"] == pytest.approx(10.0)
+
+
+def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
+    import numpy as np
+    from regor_ros.core.estimate import transform_points
+    from regor_ros.tools.benchmark import Pair
+    rng = np.random.default_rng(0)
+    src = rng.uniform(-1, 1, (50, 3))
+    pair = Pair(3, "p", "indoor", src, src, np.eye(4), np.array([0.5, 0.0, 1.0]), None)
+    moved = pair.moved(2)
+    M = np.linalg.inv(moved.T_gt)   # the truth is adjusted by the inverse motion
+    np.testing.assert_allclose(moved.src, transform_points(M, src))
+    np.testing.assert_allclose(moved.src_viewpoint, transform_points(M, pair.src_viewpoint[None])[0])
+    assert moved.tgt_viewpoint is None and pair.moved(None) is pair

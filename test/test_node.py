@@ -148,6 +148,9 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         first, second = ros.statuses[-2], ros.statuses[-1]
         assert second["mode"] == "map" and second["registrations"] == first["registrations"] + 1
         assert second["map_preparations"] == first["map_preparations"]
+        # a map has no single viewpoint: only the scan's side of the visibility check runs
+        assert second["visibility"]["target_violation"] is None
+        assert second["visibility"]["source_violation"] is not None
     finally:
         assert node.stop() < 5.0
 
