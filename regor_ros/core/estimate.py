@@ -23,6 +23,11 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def agreeing(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float) -> np.ndarray:
+    """Mask of the correspondences (source[i], target[i]) that T brings within ``threshold``."""
+    return np.linalg.norm(transform_points(T, source) - target, axis=1) < threshold
+
+
 def weighted_kabsch(source: np.ndarray, target: np.ndarray,
                     weights: Optional[np.ndarray] = None) -> np.ndarray:
     """Least-squares rigid transform(s) mapping source onto target.

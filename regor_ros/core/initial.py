@@ -16,7 +16,7 @@ from scipy.spatial.distance import cdist
 
 from .config import InitialConfig
 from .consistency import leading_eigenvector, length_residual, top_k_stable
-from .estimate import poses_close, post_refine, transform_points, weighted_kabsch
+from .estimate import agreeing, poses_close, post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
 from .matching import FeatureMatches
 
@@ -202,7 +202,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     T_fs = _fittest(kept, fitnesses, plausible) if kept else T_ic
 
     T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20)
-    inliers = np.linalg.norm(transform_points(T_m, src) - tgt, axis=1) < cfg.inlier_threshold
+    inliers = agreeing(T_m, src, tgt, cfg.inlier_threshold)
     if not inliers.any():
-        inliers = np.linalg.norm(transform_points(T_ic, src) - tgt, axis=1) < cfg.inlier_threshold
+        inliers = agreeing(T_ic, src, tgt, cfg.inlier_threshold)
     return InitialResult(T_m, inliers, len(kept))

@@ -9,13 +9,14 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import point_refine, pose_covariance, poses_close, transform_points, weighted_kabsch
+from .estimate import (agreeing, point_refine, pose_covariance, poses_close, transform_points,
+                       weighted_kabsch)
 from .features import PreparedCloud, RegistrationError, check_viewpoint, prepare
 from .initial import initial_stage
 from .matching import match_features
 from .metrics import random_rigid_motion, rotation_error_deg, translation_error
 from .regenerate import regenerate
-from .verification import Rival, ambiguity, assess, visibility_figures
+from .verification import Rival, assess, visibility_figures
 from .visibility import ORIGIN, VisibilityFigures
 
 CloudInput = Union[np.ndarray, PreparedCloud]
@@ -224,8 +225,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
     num_inliers = len(final_src)
     fitness = num_inliers / len(src_cloud)
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
-    initial_inlier = (np.linalg.norm(transform_points(T, init_src) - init_tgt, axis=1)
-                      < config.initial.inlier_threshold)
+    initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
                      num_feature_inliers, covariance, refined.target_index, config)
@@ -238,9 +238,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
-        rivals=verdict.rivals,
-        ambiguity=ambiguity(verdict.rivals, config.acceptance.max_free_space_violation,
-                            config.acceptance.max_opposite_sides))
+        rivals=verdict.rivals, ambiguity=verdict.ambiguity)
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig):

@@ -19,7 +19,7 @@ from typing import List, Optional
 import numpy as np
 
 from .config import AcceptanceConfig, RegorConfig
-from .estimate import UNCONSTRAINED_VARIANCE, point_refine, to_matrix, transform_points
+from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix
 from .features import PreparedCloud
 from .metrics import rotation_error_deg
 from .visibility import VisibilityFigures, free_space_check
@@ -46,6 +46,7 @@ class Verdict:
     reason: str                     # why it was not accepted; empty when accepted
     visibility: VisibilityFigures
     rivals: List[Rival] = field(default_factory=list)
+    ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
 
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
@@ -68,13 +69,13 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
     visibility = visibility_figures(T, source, target, gate, overlap_index)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
     rivals: List[Rival] = []
+    ambiguous = None
     if not reason:  # the rivals cost a refinement each: only for poses that may be published
         rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
                                   source, target, config)
-        reason = _evidence_failure(num_feature_inliers, visibility,
-                                   ambiguity(rivals, gate.max_free_space_violation, gate.max_opposite_sides),
-                                   gate)
-    return Verdict(not reason, reason, visibility, rivals)
+        ambiguous = ambiguity(rivals, gate.max_free_space_violation, gate.max_opposite_sides)
+        reason = _evidence_failure(num_feature_inliers, visibility, ambiguous, gate)
+    return Verdict(not reason, reason, visibility, rivals, ambiguous)
 
 
 def half_turns(points: np.ndarray) -> np.ndarray:
@@ -84,12 +85,6 @@ def half_turns(points: np.ndarray) -> np.ndarray:
     axes = np.linalg.svd(points - centre, full_matrices=False)[2]
     rotations = 2.0 * axes[:, :, None] * axes[:, None, :] - np.eye(3)
     return to_matrix(rotations, centre - rotations @ centre)
-
-
-def feature_support(T: np.ndarray, matches: tuple, threshold: float) -> int:
-    """Feature matches (source, target points) that the pose T brings within ``threshold``."""
-    source, target = matches
-    return int((np.linalg.norm(transform_points(T, source) - target, axis=1) < threshold).sum())
 
 
 def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, overlap: np.ndarray,
@@ -107,7 +102,7 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
         refined = point_refine(turn @ T, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS)
         visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
         rivals.append(Rival(len(refined.source_index) / max(own, 1),
-                            feature_support(refined.transform, matches, config.initial.inlier_threshold)
+                            int(agreeing(refined.transform, *matches, config.initial.inlier_threshold).sum())
                             / max(num_feature_inliers, 1),
                             visibility.worst, visibility.opposite_sides,
                             rotation_error_deg(refined.transform, T)))

@@ -14,6 +14,7 @@ from typing import Optional
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
@@ -24,7 +25,6 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
-from diagnostic_msgs.msg import DiagnosticArray
 
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
 from ..core.estimate import transform_points

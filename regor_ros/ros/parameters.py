@@ -53,7 +53,6 @@ class NodeSettings:
                                 None if self.mode == "map" else ORIGIN))
 
 
-
 CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
            "preset": PRESETS, **CORE_CHOICES}
 READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period"}
