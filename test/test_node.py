@@ -139,12 +139,15 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
         ros.publish(target=xyz_to_cloud(tgt, ros.header("map")))
         ros.spin_until(lambda: False, 2.0)  # the latched copy from earlier tests arrives too
+        statuses_before = len(ros.statuses)
         for seed in (25, 26):
             moved, _, truth, _ = moved_pair("3dmatch_redkitchen_5_6_ds", seed)
             seen = len(ros.poses)
             ros.publish(source=xyz_to_cloud(moved, ros.header("scan")))
             assert ros.spin_until(lambda: len(ros.poses) > seen, TIMEOUT), node.output()
             assert is_success(pose_to_matrix(ros.poses[seen]), truth, kind)
+        # status and pose are separate topics: a status may arrive after its pose
+        assert ros.spin_until(lambda: len(ros.statuses) >= statuses_before + 2, 10.0), node.output()
         first, second = ros.statuses[-2], ros.statuses[-1]
         assert second["mode"] == "map" and second["registrations"] == first["registrations"] + 1
         assert second["map_preparations"] == first["map_preparations"]
