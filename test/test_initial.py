@@ -33,7 +33,7 @@ def test_both_rankings_find_the_kitchen_pose(kitchen_pair):
         cfg = RegorConfig().replace({"ranking": ranking})
         source, target = prepare_cloud(src, cfg), prepare_cloud(tgt, cfg)
         rows = np.arange(len(source))
-        matches = match_features(source.features, target.features, cfg.initial.candidates, rows)
+        matches = match_features(source, target, cfg.initial.candidates, rows)
         result = initial_stage(source.points, target.points[matches.target_index], source, target,
                                matches, cfg.initial, np.random.default_rng(0))
         assert is_success(result.transform, T_gt, kind), ranking

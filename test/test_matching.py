@@ -1,5 +1,8 @@
+from types import SimpleNamespace
+
 import numpy as np
 
+from regor_ros.core.feature_index import FeatureIndex
 from regor_ros.core.matching import (feature_distance, generalized_mutual_matches, match_features,
                                      mutual_matches)
 
@@ -7,6 +10,11 @@ from regor_ros.core.matching import (feature_distance, generalized_mutual_matche
 def unit_rows(rng, n):
     f = rng.random((n, 33)).astype(np.float32)
     return f / np.linalg.norm(f, axis=1, keepdims=True)
+
+
+def cloud(features):
+    """What matching reads of a prepared cloud: its features and their exact index."""
+    return SimpleNamespace(features=features, index=FeatureIndex(features, len(features), 1))
 
 
 def test_gmm_contains_mutual_matches_and_at_most_two_pairs_per_point():
@@ -35,7 +43,7 @@ def test_match_features_nearest_and_candidates_agree_with_a_full_sort():
     rng = np.random.default_rng(2)
     fs, ft = unit_rows(rng, 300), unit_rows(rng, 500)
     rows = np.arange(0, 300, 3)
-    m = match_features(fs, ft, candidates=10, candidate_rows=rows)
+    m = match_features(cloud(fs), cloud(ft), candidates=10, candidate_rows=rows)
     sim = fs @ ft.T
     np.testing.assert_array_equal(m.target_index, sim.argmax(axis=1))
     expected = np.sort(np.argsort(-sim[rows], axis=1)[:, :10], axis=1)
@@ -52,8 +60,8 @@ def test_feature_distance_of_identical_unit_vectors_is_near_zero():
 
 def test_mutual_flags_and_similarities_agree_with_the_full_matrix():
     rng = np.random.default_rng(3)
-    fs, ft = unit_rows(rng, 5000), unit_rows(rng, 300)   # several row chunks
-    m = match_features(fs, ft, candidates=5, candidate_rows=np.zeros(0, np.int64))
+    fs, ft = unit_rows(rng, 5000), unit_rows(rng, 300)
+    m = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64))
     sim = fs @ ft.T
     np.testing.assert_allclose(m.similarity, sim.max(axis=1), rtol=1e-6)
     np.testing.assert_array_equal(m.mutual, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))

@@ -3,6 +3,7 @@ from scipy.spatial import cKDTree
 
 from regor_ros.core.config import FeatureConfig, RegenerationConfig
 from regor_ros.core.estimate import transform_points
+from regor_ros.core.feature_index import FeatureIndex
 from regor_ros.core.features import PreparedCloud
 from regor_ros.core.regenerate import LocalMatches, global_filter, three_point_filter
 
@@ -10,8 +11,9 @@ from conftest import random_motion
 
 
 def cloud(points):
-    return PreparedCloud(points, np.zeros_like(points), np.zeros((len(points), 33), np.float32), cKDTree(points),
-                         FeatureConfig(), len(points))
+    features = np.zeros((len(points), 33), np.float32)
+    return PreparedCloud(points, np.zeros_like(points), features, cKDTree(points),
+                         FeatureIndex(features, 100, 1), FeatureConfig(), len(points))
 
 
 def region_problem():

@@ -13,6 +13,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
+from .feature_index import FeatureIndex
 from .visibility import RangeImage
 
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
@@ -25,12 +26,14 @@ class RegistrationError(ValueError):
 
 @dataclass
 class PreparedCloud:
-    """Keypoints (every voxel-downsampled point), their unit FPFH features and a kd-tree."""
+    """Keypoints (every voxel-downsampled point), their unit FPFH features, a kd-tree over the
+    points and a search index over the features."""
 
     points: np.ndarray    # (N, 3) float64, metres
     normals: np.ndarray   # (N, 3) unit normals (for the pose covariance)
     features: np.ndarray  # (N, 33) float32, L2-normalised
     tree: cKDTree
+    index: FeatureIndex
     config: FeatureConfig  # the settings it was prepared with
     input_size: int        # finite points in the raw cloud
     range_image: Optional[RangeImage] = None  # what its sensor saw, when the viewpoint is known
@@ -128,5 +131,7 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> 
     keypoints = np.asarray(down.points, dtype=np.float64)
     normals = np.asarray(down.normals, dtype=np.float64)
     image = None if vp is None else RangeImage.build(points, vp, config.range_image_resolution)
-    return PreparedCloud(keypoints, normals, np.ascontiguousarray(features), cKDTree(keypoints),
-                         config, len(points), image)
+    features = np.ascontiguousarray(features)
+    index = FeatureIndex(features, config.exact_search_limit, config.search_probes)
+    return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
+                         len(points), image)

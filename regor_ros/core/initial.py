@@ -173,8 +173,9 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
     T_ic = hypotheses[int(np.argmax(counts))]
 
-    # FS-TCD works on the candidates' x, y, z planes, relative to the target centroid (float32)
-    origin = target.points.mean(axis=0)
+    # FS-TCD works on the candidates' x, y, z planes, relative to their centroid (float32; not
+    # the target's: a map's would cost a pass over the map on every call)
+    origin = target.points[matches.candidates[:, 0]].mean(axis=0)
     candidate_points = np.ascontiguousarray(
         np.moveaxis(target.points[matches.candidates] - origin, 2, 0), dtype=np.float32)
     shift = np.eye(4)

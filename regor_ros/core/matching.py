@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-ROW_CHUNK = 2048  # rows of the similarity matrix held at once (memory bound for large clouds)
+from .features import PreparedCloud
 
 
 @dataclass
@@ -29,45 +29,22 @@ def feature_distance(similarity: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(2.0 - 2.0 * similarity + 1e-6, 0.0))
 
 
-def match_features(source_features: np.ndarray, target_features: np.ndarray, candidates: int,
+def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int,
                    candidate_rows: np.ndarray) -> FeatureMatches:
     """Nearest target feature per source feature (no mutual check, as the authors run it) and the
-    ``candidates`` most similar targets of the source features in ``candidate_rows`` (sorted).
-
-    The candidates are selected by a value threshold (np.partition) rather than argpartition,
-    which is about twice as fast; ties at the threshold keep the lowest target indices.
-    """
-    n, m = len(source_features), len(target_features)
-    k = min(candidates, m)
-    kth = m - k
-    nearest = np.empty(n, dtype=np.int64)
-    best_sim = np.empty(n, dtype=np.float32)
-    column_best = np.full(m, -np.inf, dtype=np.float32)
-    column_arg = np.zeros(m, dtype=np.int64)
-    cand = np.empty((len(candidate_rows), k), dtype=np.int64)
-    cand_sim = np.empty((len(candidate_rows), k), dtype=np.float32)
-    for start in range(0, n, ROW_CHUNK):
-        sim = source_features[start:start + ROW_CHUNK] @ target_features.T
-        chunk_nearest = np.argmax(sim, axis=1)
-        nearest[start:start + len(sim)] = chunk_nearest
-        best_sim[start:start + len(sim)] = sim[np.arange(len(sim)), chunk_nearest]
-        chunk_arg = np.ascontiguousarray(sim.T).argmax(axis=1)  # 6x faster than argmax(axis=0)
-        chunk_best = sim[chunk_arg, np.arange(m)]
-        better = chunk_best > column_best
-        column_best[better], column_arg[better] = chunk_best[better], chunk_arg[better] + start
-        lo, hi = np.searchsorted(candidate_rows, [start, start + len(sim)])
-        if lo == hi:
-            continue
-        if hi - lo < len(sim):
-            sim = sim[candidate_rows[lo:hi] - start]
-        rows = len(sim)
-        floor = np.partition(sim, kth, axis=1)[:, kth]
-        r, c = np.nonzero(sim >= floor[:, None])
-        rank = np.arange(len(r)) - np.searchsorted(r, r)
-        keep = rank < k
-        cand[lo:hi] = c[keep].reshape(rows, k)
-        cand_sim[lo:hi] = sim[r[keep], c[keep]].reshape(rows, k)
-    mutual = column_arg[nearest] == np.arange(n)
+    ``candidates`` most similar targets of the source features in ``candidate_rows``, most
+    similar first. Only the target's index is searched, so a map costs an index query per
+    source keypoint; mutuality asks the source's index about the targets that were hit."""
+    nearest, best_sim = target.index.search(source.features, 1)
+    nearest, best_sim = np.maximum(nearest[:, 0], 0), best_sim[:, 0]
+    cand, cand_sim = target.index.search(source.features[candidate_rows], candidates)
+    missing = cand < 0  # an inverted file found fewer than K: repeat the row's best instead
+    if missing.any():
+        cand = np.where(missing, cand[:, :1], cand)
+        cand_sim = np.where(missing, cand_sim[:, :1], cand_sim)
+    hit, slot = np.unique(nearest, return_inverse=True)
+    back, _ = source.index.search(target.features[hit], 1)
+    mutual = back[slot, 0] == np.arange(len(nearest))
     return FeatureMatches(nearest, best_sim, mutual, candidate_rows, cand, feature_distance(cand_sim))
 
 
