@@ -50,6 +50,14 @@ def load_pair(name):
             np.loadtxt(folder / "gt.txt"), kinds[name])
 
 
+def load_map_query(sequence, query):
+    """(scan, map, T_map_scan) of a scan-to-map query in ../shared/data/maps."""
+    require_shared_data(f"map {sequence}")
+    folder = DATA / "maps" / sequence
+    return (np.load(folder / "queries" / query / "scan.npy"), np.load(folder / "map.npy"),
+            np.loadtxt(folder / "queries" / query / "gt.txt"))
+
+
 def random_motion(seed, max_translation=2.0):
     return random_rigid_motion(seed, max_translation)
 

@@ -2,6 +2,7 @@
 from .config import ConfigError, RegorConfig
 from .features import PreparedCloud, RegistrationError
 from .pipeline import Correspondences, RegistrationResult, prepare_cloud, register
+from .search_region import SearchRegion
 
 __all__ = ["ConfigError", "Correspondences", "PreparedCloud", "RegistrationError",
-           "RegistrationResult", "RegorConfig", "prepare_cloud", "register"]
+           "RegistrationResult", "RegorConfig", "SearchRegion", "prepare_cloud", "register"]

@@ -13,13 +13,14 @@ Features are unit vectors: inner product ranks them as the feature distance does
 """
 from __future__ import annotations
 
-from typing import Tuple
+from typing import Optional, Tuple
 
 import faiss
 import numpy as np
 
 CELLS_PER_SQRT = 4        # k-means cells = 4 sqrt(n), FAISS's rule of thumb for inverted files
-TRAINING_PER_CELL = 64    # training sample per cell (k-means needs about 40; all points if fewer)
+MIN_ROWS_PER_CELL = 40    # k-means needs about 40 training rows per cell
+TRAINING_PER_CELL = 64    # training sample per cell (all rows if fewer)
 KMEANS_SEED = 1234
 
 
@@ -32,10 +33,13 @@ class FeatureIndex:
         n, dim = features.shape
         self.size = n
         self.exact = n <= exact_limit
+        self._exact_limit = exact_limit
+        self._rows: Optional[np.ndarray] = None  # a restricted view: the parent's rows it searches
+        self._params = None
         if self.exact:
             self._index = faiss.IndexFlatIP(dim)
         else:
-            cells = max(1, int(round(CELLS_PER_SQRT * np.sqrt(n))))
+            cells = max(1, min(int(round(CELLS_PER_SQRT * np.sqrt(n))), n // MIN_ROWS_PER_CELL))
             self._index = faiss.IndexIVFFlat(faiss.IndexFlatIP(dim), dim, cells,
                                              faiss.METRIC_INNER_PRODUCT)
             self._index.cp.seed = KMEANS_SEED
@@ -48,6 +52,24 @@ class FeatureIndex:
     def __len__(self) -> int:
         return self.size
 
+    def restricted(self, rows: np.ndarray, features: np.ndarray) -> "FeatureIndex":
+        """An index over ``rows`` (sorted) of this one, whose results are positions in ``rows``;
+        ``features`` are those rows' features. Up to the exact limit a new exact index (its cost
+        follows the rows); beyond it this index's own cells, filtered to the rows (no new
+        training per call)."""
+        if len(rows) <= self._exact_limit or self.exact:
+            return FeatureIndex(features, max(self._exact_limit, len(rows)), 1)
+        view = object.__new__(FeatureIndex)
+        view.size, view.exact, view._exact_limit, view._index = len(rows), False, self._exact_limit, self._index
+        view._rows = np.ascontiguousarray(rows, dtype=np.int64)
+        member = np.zeros(self.size, dtype=bool)
+        member[view._rows] = True
+        view._bitmap = np.packbits(member, bitorder="little")  # kept alive for the selector
+        selector = faiss.IDSelectorBitmap(self.size, faiss.swig_ptr(view._bitmap))
+        view._params = faiss.SearchParametersIVF(sel=selector, nprobe=self._index.nprobe)
+        view._selector = selector
+        return view
+
     def search(self, queries: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
         """The k most similar rows of each query, most similar first: (index (Q, k) int64,
         similarity (Q, k) float32). An inverted file may find fewer than k (index -1, similarity
@@ -56,5 +78,10 @@ class FeatureIndex:
         queries = np.ascontiguousarray(queries, dtype=np.float32)
         if len(queries) == 0:
             return np.zeros((0, k), np.int64), np.zeros((0, k), np.float32)
-        similarity, index = self._index.search(queries, k)
+        if self._params is None:
+            similarity, index = self._index.search(queries, k)
+            return index.astype(np.int64), similarity
+        similarity, index = self._index.search(queries, k, params=self._params)
+        found = index >= 0
+        index[found] = np.searchsorted(self._rows, index[found])
         return index.astype(np.int64), similarity

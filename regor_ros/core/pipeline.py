@@ -16,6 +16,7 @@ from .initial import initial_stage
 from .matching import match_features
 from .metrics import random_rigid_motion, rotation_error_deg, translation_error
 from .regenerate import regenerate
+from .search_region import SearchRegion, outside, restrict
 from .verification import Rival, assess, visibility_figures
 from .visibility import ORIGIN, VisibilityFigures
 
@@ -91,7 +92,8 @@ def _prepared(cloud: CloudInput, config: RegorConfig, name: str, viewpoint) -> P
 
 
 def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
-             source_viewpoint=ORIGIN, target_viewpoint=ORIGIN) -> RegistrationResult:
+             source_viewpoint=ORIGIN, target_viewpoint=ORIGIN,
+             search_region: Optional[SearchRegion] = None) -> RegistrationResult:
     """Estimate T_target_source with no initial guess.
 
     ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Each viewpoint is
@@ -104,6 +106,10 @@ def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfi
     With acceptance.retries, a rejected raw source is registered again on a re-drawn voxel grid:
     how many FPFH matches are correct varies several-fold with the grid, so a pair that fails on
     one grid often passes on another. A prepared source cannot be re-gridded and is not retried.
+
+    ``search_region`` (a hint: where the source frame's origin is in the target frame, and how
+    far off that may be) limits the search to the target keypoints the source can overlap from
+    there, and a pose outside it is not accepted.
     """
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
@@ -111,6 +117,8 @@ def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfi
     source_viewpoint = check_viewpoint(source_viewpoint, "source")
     prepared_source = _prepared(source, config, "source", source_viewpoint)
     target = _prepared(target, config, "target", target_viewpoint)
+    if search_region is not None:
+        target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
     result = _register_once(prepared_source, target, config)
     attempts = 1
@@ -130,6 +138,8 @@ def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfi
         if retry.accepted:
             result = _undo_turn(retry, turn)
     result.attempts = attempts
+    if result.accepted and search_region is not None and outside(result.transform, search_region):
+        result.accepted, result.reason = False, outside(result.transform, search_region)
     if result.accepted and config.acceptance.reverse_check:
         _check_reverse(result, prepared_source, target, config)
     result.timings["features"] += prepare_seconds
