@@ -96,3 +96,18 @@ def test_covariance_of_a_plane_leaves_sliding_unconstrained():
     cov = pose_covariance(np.eye(4), src, src + rng.normal(scale=0.001, size=src.shape), normals)
     assert cov[0, 0] >= 1e6 and cov[1, 1] >= 1e6 and cov[5, 5] >= 1e6   # x, y, yaw slide freely
     assert cov[2, 2] < 1.0 and cov[3, 3] < 1.0 and cov[4, 4] < 1.0      # z, roll, pitch are fixed
+
+
+def test_covariance_does_not_depend_on_where_the_target_origin_is():
+    """A scan 1 km from a map's origin is as well constrained as one at the origin (the lever arm
+    once made the rotation-translation system singular there: the pose was withheld)."""
+    src, normals = ellipsoid(500, 10)
+    T = random_motion(11)
+    tgt = transform_points(T, src) + np.random.default_rng(12).normal(scale=0.01, size=src.shape)
+    normals = normals @ T[:3, :3].T
+    near = pose_covariance(T, src, tgt, normals)
+    far_T = T.copy()
+    far_T[:3, 3] += [1000.0, -800.0, 20.0]
+    far = pose_covariance(far_T, src, tgt + far_T[:3, 3] - T[:3, 3], normals)
+    np.testing.assert_allclose(far, near, rtol=1e-4, atol=1e-12)
+    assert np.linalg.eigvalsh(far).max() < 1.0

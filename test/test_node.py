@@ -1,6 +1,7 @@
 """The installed register_node, built with colcon and started as a process, over real DDS."""
 import numpy as np
 import pytest
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.srv import DescribeParameters, GetParameters
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
@@ -9,7 +10,7 @@ from regor_ros.core.metrics import is_success, rotation_error_deg, translation_e
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import pose_to_matrix
 
-from conftest import moved_pair
+from conftest import load_map_query, moved_pair
 from ros_helpers import TIMEOUT, NodeProcess, call, set_param
 
 
@@ -156,6 +157,65 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         assert second["visibility"]["source_violation"] is not None
     finally:
         assert node.stop() < 5.0
+
+
+def test_map_mode_with_a_large_map_and_an_initial_guess(install, ros, pairs_node):
+    """A real LiDAR scan (4.9 k points) against its real map three times over (620 k points, two
+    orders of magnitude larger): the query that arrives while the map is prepared waits for it;
+    an initial guess picks the copy it points at; a guess 30 m off is not confirmed."""
+    pairs_node.stop()
+    scan, cloud, T_gt = load_map_query("fastlio_avia_hku2", "scan_000005")
+    shifts = [np.array([1000.0 * i, 0.0, 0.0]) for i in range(3)]  # the map reaches 210 m out
+    big = np.vstack([cloud + shift for shift in shifts])
+    ros.publish(target=xyz_to_cloud(big, ros.header("map")))  # latched: replaces earlier tests' map
+    node = NodeProcess(install, "--params-file", str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+                       "-p", "mode:=map", "-r", "__node:=register_node")
+    guesses = ros.create_publisher(PoseWithCovarianceStamped, "initial_guess", 1)
+    try:
+        assert ros.wait_for_node(TIMEOUT), node.output()
+        seen, statuses = len(ros.poses), len(ros.statuses)
+        ros.publish(source=xyz_to_cloud(scan, ros.header("scan")))  # while the map is prepared
+        assert ros.spin_until(lambda: len(ros.statuses) > statuses, TIMEOUT), node.output()
+        status = ros.statuses[-1]
+        assert status["map_points"] > 100 * len(scan) and status["map_keypoints"] > 0, status
+        assert status["map_preparations"] == 1 and status["registrations"] == 1, status
+        assert not status["map_exact_search"] and status["search_region"] is None
+        if status["accepted"]:  # without a guess any copy will do
+            assert ros.spin_until(lambda: len(ros.poses) > seen, 10.0)
+            T = pose_to_matrix(ros.poses[-1])
+            assert any(is_success(T, T_gt + _shifted(shift), "outdoor") for shift in shifts)
+
+        for copy, offset, expect in ((2, 1.0, True), (1, 1.0, True), (1, 30.0, False)):
+            truth = T_gt + _shifted(shifts[copy])
+            guess = PoseWithCovarianceStamped(header=ros.header("map"))
+            guess.pose.pose.position.x = float(truth[0, 3] + offset)
+            guess.pose.pose.position.y = float(truth[1, 3])
+            guess.pose.pose.orientation.w = 1.0
+            guess.pose.covariance[0] = guess.pose.covariance[7] = 1.0  # sigma 1 m: a 3 m region
+            guesses.publish(guess)
+            ros.spin_until(lambda: False, 1.0)
+            seen, statuses = len(ros.poses), len(ros.statuses)
+            ros.publish(source=xyz_to_cloud(scan, ros.header("scan")))
+            assert ros.spin_until(lambda: len(ros.statuses) > statuses, TIMEOUT), node.output()
+            status = ros.statuses[-1]
+            assert status["search_region"]["radius"] == pytest.approx(3.0), status
+            assert status["accepted"] is expect, status
+            if expect:
+                assert ros.spin_until(lambda: len(ros.poses) > seen, 10.0)
+                assert is_success(pose_to_matrix(ros.poses[-1]), truth, "outdoor")
+            else:
+                assert "hinted position" in status["reason"]
+        assert ros.statuses[-1]["map_preparations"] == 1
+    finally:
+        ros.destroy_publisher(guesses)
+        assert node.stop() < 5.0
+
+
+def _shifted(shift):
+    """The change of a 4x4 pose when its translation moves by ``shift``."""
+    delta = np.zeros((4, 4))
+    delta[:3, 3] = shift
+    return delta
 
 
 def test_invalid_parameter_file_value_stops_with_a_clear_message(install):

@@ -119,15 +119,18 @@ UNCONSTRAINED_VARIANCE = 1e6  # covariance diagonal reported for degrees of free
 def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
                     target_normals: np.ndarray) -> np.ndarray:
     """6x6 covariance of (x, y, z, roll, pitch, yaw) from the point-to-plane residuals of the
-    inlier pairs: sigma^2 (J^T J)^-1 for a small motion applied in the target frame (translation
-    first, as ROS orders it). Point-to-plane exposes what the surfaces leave free (sliding along a
-    plane or a corridor); such degrees of freedom get UNCONSTRAINED_VARIANCE."""
+    inlier pairs: sigma^2 (J^T J)^-1 for a small motion of the pose in the target frame's axes
+    (translation first, as ROS orders it), rotating about the pose's own position: the position's
+    uncertainty is the source origin's, not inflated by its distance from the target's origin
+    (which, hundreds of metres out in a map, also made the system numerically singular).
+    Point-to-plane exposes what the surfaces leave free (sliding along a plane or a corridor);
+    such degrees of freedom get UNCONSTRAINED_VARIANCE."""
     moved = transform_points(T, source)
     n = len(moved)
     if n < 7:
         return np.eye(6) * UNCONSTRAINED_VARIANCE
     residual = ((moved - target) * target_normals).sum(axis=1)
-    J = np.hstack([target_normals, np.cross(moved, target_normals)])   # (n, 6)
+    J = np.hstack([target_normals, np.cross(moved - T[:3, 3], target_normals)])   # (n, 6)
     JtJ = J.T @ J
     eigenvalues, eigenvectors = np.linalg.eigh(JtJ)
     sigma2 = max(float(residual @ residual) / (n - 6), 1e-12)

@@ -4,8 +4,8 @@ Robots often know roughly where they are (an operator's "2D Pose Estimate", a lo
 lost track). With the source frame's origin (the robot, or its sensor) believed within
 ``radius`` of ``centre`` in the target frame, only target keypoints within ``radius`` plus the
 source's own reach around that point can match; the rest of the map is left out of the search,
-and a pose that puts the origin outside the region is not accepted. Only the position is used:
-the search stays global in orientation, which a hint often gets wrong.
+and a pose that puts the origin outside the region (horizontally) is not accepted. Only the
+position is used: the search stays global in orientation, which a hint often gets wrong.
 """
 from __future__ import annotations
 
@@ -55,8 +55,9 @@ def restrict(target: PreparedCloud, region: SearchRegion, source: PreparedCloud)
 
 
 def outside(T: np.ndarray, region: SearchRegion) -> str:
-    """Why the pose is outside the region (empty when inside)."""
-    offset = float(np.linalg.norm(T[:3, 3] - region.centre))
+    """Why the pose is outside the region (empty when inside). Horizontal distance only: hints are
+    mostly 2D pose estimates on the ground, which say nothing of the sensor's height."""
+    offset = float(np.linalg.norm(T[:2, 3] - region.centre[:2]))
     if offset <= region.radius:
         return ""
     return (f"the pose puts the source {offset:.1f} m from the hinted position, outside its "

@@ -1,8 +1,9 @@
 """register_node: Regor registration of two PointCloud2 topics, published as a pose.
 
-Callbacks only store the newest messages; one worker thread registers, so a slow registration
-drops stale inputs (counted) instead of queueing them, and the executor keeps answering
-parameter changes.
+Callbacks only store the newest messages; one worker thread prepares maps and registers, so a
+slow registration drops stale inputs (counted) instead of queueing them, and the executor keeps
+answering parameter changes. In map mode a new map is prepared before any query is registered:
+queries that arrive meanwhile wait (the newest is kept), never meeting a half-built map.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
 from ..core.estimate import transform_points
 from .diagnostics import Health, diagnostic_array
+from .initial_guess import search_region
 from .messages import correspondence_markers, pose_stamped, pose_with_covariance, status_message
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
@@ -68,7 +70,9 @@ class RegisterNode(Node):
         self._serials = {"source": 0, "target": 0}
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
-        self._prepared_serial = None  # (target message serial, viewpoint) of the cached map
+        self._prepared_key = None  # (target serial, viewpoint, feature settings) of the cached map
+        self._map_info = {}        # the prepared map's size and preparation time, for status
+        self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
         self.stats = {"source_clouds": 0, "target_clouds": 0, "registrations": 0, "accepted_poses": 0,
                       "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
         self._stopping = False
@@ -79,6 +83,8 @@ class RegisterNode(Node):
                                  qos_profile(self.settings.source_qos))
         self.create_subscription(PointCloud2, "target_cloud", self._on_target,
                                  qos_profile(self.settings.target_qos))
+        self.create_subscription(PoseWithCovarianceStamped, "initial_guess", self._on_initial_guess,
+                                 qos_profile("reliable"))
         self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
         self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
@@ -118,6 +124,14 @@ class RegisterNode(Node):
 
     def _on_target(self, msg: PointCloud2) -> None:
         self._store("target", msg)
+
+    def _on_initial_guess(self, msg: PoseWithCovarianceStamped) -> None:
+        with self._lock:
+            self._hint = msg
+            self._lock.notify()
+        self.get_logger().info(
+            f"initial guess received: ({msg.pose.pose.position.x:.1f}, {msg.pose.pose.position.y:.1f}, "
+            f"{msg.pose.pose.position.z:.1f}) in '{msg.header.frame_id}'; in force until a pose is accepted")
 
     def _store(self, which: str, msg: PointCloud2) -> None:
         try:
@@ -167,42 +181,86 @@ class RegisterNode(Node):
                 return None
         return src, tgt
 
+    def _map_key(self, tgt: Cloud, config, settings):
+        return tgt.serial, settings.viewpoints()[1], config.features
+
+    def _next_job(self):
+        """What the worker does next: ("prepare", map), ("register", source, target) or None."""
+        tgt = self._target
+        if self.settings.mode == "map" and tgt is not None and \
+                self._prepared_key != self._map_key(tgt, self.config, self.settings):
+            return "prepare", tgt
+        ready = self._ready()
+        return None if ready is None else ("register", *ready)
+
     def _work(self) -> None:
         while True:
             with self._lock:
-                job = self._ready()
+                job = self._next_job()
                 while job is None and not self._stopping:
                     self._lock.wait(0.5)
-                    job = self._ready()
+                    job = self._next_job()
                 if self._stopping:
                     return
-                src, tgt = job
-                self._done["source"], self._done["target"] = src.serial, tgt.serial
-                config, settings = self.config, self.settings
-            self._register(src, tgt, config, settings)
+                config, settings, hint = self.config, self.settings, self._hint
+                if job[0] == "register":
+                    src, tgt = job[1], job[2]
+                    self._done["source"], self._done["target"] = src.serial, tgt.serial
+            if job[0] == "prepare":
+                self._prepare_map(job[1], config, settings)
+            else:
+                self._register(src, tgt, config, settings, hint)
 
-    def _target_input(self, tgt: Cloud, config, settings, viewpoint):
-        """The target as registered: in map mode prepared once and cached per message."""
-        if settings.mode != "map":
-            return tgt.points
-        cached = self._prepared_target
-        if cached is None or self._prepared_serial != (tgt.serial, viewpoint) or cached.config != config.features:
-            self.health.preparing_map = True
-            try:
-                self._prepared_target = prepare_cloud(tgt.points, config, "target", viewpoint=viewpoint)
-            finally:
-                self.health.preparing_map = False
-            self._prepared_serial = (tgt.serial, viewpoint)
-            self.stats["map_preparations"] += 1
-            self.get_logger().info(f"map prepared: {len(self._prepared_target)} keypoints")
-        return self._prepared_target
-
-    def _register(self, src: Cloud, tgt: Cloud, config, settings) -> None:
-        source_viewpoint, target_viewpoint = settings.viewpoints()
+    def _prepare_map(self, tgt: Cloud, config, settings) -> None:
+        """Prepare the map once per message (and feature settings); queries wait meanwhile."""
+        key = self._map_key(tgt, config, settings)
+        self.health.preparing_map = True
+        start = time.perf_counter()
         try:
-            target = self._target_input(tgt, config, settings, target_viewpoint)
+            prepared = prepare_cloud(tgt.points, config, "target", viewpoint=key[1])
+        except RegistrationError as exc:
+            prepared = None
+            self.health.last_error = f"map not usable: {exc}"
+            self._bad_input(f"map skipped: {exc}")
+        finally:
+            self.health.preparing_map = False
+        seconds = time.perf_counter() - start
+        with self._lock:
+            self._prepared_target, self._prepared_key = prepared, key
+            if prepared is not None:
+                self.stats["map_preparations"] += 1
+                self._map_info = {"map_points": prepared.input_size, "map_keypoints": len(prepared),
+                                  "map_exact_search": prepared.index.exact,
+                                  "map_preparation_seconds": round(seconds, 3)}
+        if prepared is not None:
+            self.get_logger().info(f"map prepared: {prepared.input_size} points, {len(prepared)} keypoints "
+                                   f"in {seconds:.1f} s")
+
+    def _search_region(self, hint: Optional[PoseWithCovarianceStamped], tgt: Cloud, settings):
+        """The hint as a search region, or None; a hint in another frame is dropped with a warning."""
+        if hint is None:
+            return None
+        if hint.header.frame_id and hint.header.frame_id != tgt.header.frame_id:
+            with self._lock:
+                if self._hint is hint:
+                    self._hint = None
+            self._bad_input(f"initial_guess dropped: it is in '{hint.header.frame_id}', the target "
+                            f"cloud in '{tgt.header.frame_id}' (this node does not look up tf)")
+            return None
+        return search_region(hint, settings.initial_guess_sigmas, settings.initial_guess_min_radius,
+                             settings.initial_guess_max_radius)
+
+    def _register(self, src: Cloud, tgt: Cloud, config, settings, hint) -> None:
+        source_viewpoint, target_viewpoint = settings.viewpoints()
+        target = tgt.points
+        if settings.mode == "map":
+            target = self._prepared_target
+            if target is None:  # the map could not be prepared: said when it was tried
+                return
+        try:
+            region = self._search_region(hint, tgt, settings)
             result = register(src.points, target, config, source_viewpoint=source_viewpoint,
-                              target_viewpoint=target_viewpoint)
+                              target_viewpoint=target_viewpoint, search_region=region)
         except RegistrationError as exc:
             self.health.last_error = str(exc)
             self._bad_input(f"registration skipped: {exc}")
@@ -216,9 +274,14 @@ class RegisterNode(Node):
             self.stats["accepted_poses"] += int(result.accepted)
             self.health.last_error = self.health.last_bad_input = ""
             self.health.last_summary = result.summary()
+            if result.accepted and region is not None and self._hint is hint:
+                self._hint = None  # the robot is found: the hint has done its job
+            extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
+                     "mode": settings.mode, **self.stats,
+                     **(self._map_info if settings.mode == "map" else {}),
+                     "search_region": None if region is None else {
+                         "centre": [float(v) for v in region.centre], "radius": region.radius}}
         header = Header(stamp=src.header.stamp, frame_id=tgt.header.frame_id)
-        extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
-                 "mode": settings.mode, **self.stats}
         self.status_pub.publish(status_message(result, extra))
         self.marker_pub.publish(correspondence_markers(result, header, settings.max_markers,
                                                        settings.marker_line_width))

@@ -46,6 +46,13 @@ class NodeSettings:
                                    "'x, y, z' [m], 'none', or auto (the frame's origin in pairs mode; none "
                                    "in map mode, a map has no single viewpoint)")
 
+    initial_guess_sigmas: float = _param(3.0, "an initial_guess restricts the search to this many standard deviations of "
+                                         "its position covariance around it", 0.0, 100.0)
+    initial_guess_min_radius: float = _param(2.0, "the search radius of an initial_guess is at least this, however "
+                                             "certain it claims to be [m]", 0.0, 1e5)
+    initial_guess_max_radius: float = _param(50.0, "the search radius of an initial_guess is at most this, however "
+                                             "uncertain it is [m]", 0.0, 1e6)
+
     def viewpoints(self):
         """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""
         return (parse_viewpoint(self.source_viewpoint, "source_viewpoint", ORIGIN),
@@ -106,6 +113,8 @@ def make_settings(values: Dict) -> NodeSettings:
         if low is not None and not low <= value <= high:
             raise ConfigError(f"{f.name}={value!r} is outside its valid range [{low}, {high}]")
     settings.viewpoints()  # raises on a malformed viewpoint
+    if settings.initial_guess_min_radius > settings.initial_guess_max_radius:
+        raise ConfigError("initial_guess_min_radius is larger than initial_guess_max_radius")
     return settings
 
 

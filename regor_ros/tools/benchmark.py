@@ -280,7 +280,7 @@ def machine() -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument("data", type=Path, nargs="+",
+    parser.add_argument("data", type=Path, nargs="*",
                         help="folders with pairs.json and one folder per pair")
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated subset of: {', '.join(METHODS)}")
@@ -294,7 +294,19 @@ def main(argv=None) -> int:
     parser.add_argument("--mismatched", action="store_true",
                         help="instead: register each source against targets of other places (one per "
                              "place and seed) and count the poses each method's gate accepts: all wrong")
+    parser.add_argument("--maps", type=Path, metavar="DIR",
+                        help="instead: scan-to-map relocalization on every sequence folder in DIR "
+                             "(map.npy, queries.json, queries/<id>/), Regor and KISS-Matcher")
+    parser.add_argument("--map-scaling", type=Path, metavar="SEQUENCE",
+                        help="instead: tile the map of one sequence folder --tiles times and measure "
+                             "preparation, registration time and peak memory against map size")
+    parser.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 4, 7],
+                        help="copies of the map for --map-scaling (default 1 2 4 7)")
     args = parser.parse_args(argv)
+    if args.maps or args.map_scaling:
+        return _map_main(args, argv)
+    if not args.data:
+        parser.error("give one or more folders of pairs, or --maps / --map-scaling")
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = [m for m in methods if m not in METHODS]
@@ -345,6 +357,31 @@ def main(argv=None) -> int:
     plots(summary, methods, args.out / f"{stem}.png")
     print(report)
     print(f"wrote {args.out / stem}.md, .csv and .png")
+    return 0
+
+
+def _map_main(args, argv) -> int:
+    """--maps and --map-scaling: the outdoor preset (every map here is LiDAR) with --set overrides."""
+    from .map_benchmark import MAP_METHODS, TILE_SPACING, run_maps, run_scaling
+    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
+    try:
+        config = RegorConfig.preset("outdoor").replace(overrides)
+    except ConfigError as exc:
+        raise SystemExit(f"regor-bench: {exc}")
+    command = "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
+    header = (f"# regor_ros scan-to-map benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
+              f"Command: `{command}`  \nOutdoor preset; success: RE < 5 deg and TE < 60 cm against "
+              "the sequence's SLAM pose. Regor prepares the map once (its time is the preparation "
+              "column) and registers each query against it; KISS-Matcher is given the scan and the map "
+              "on every call. Peak memory is the resident peak of the process that ran the method.")
+    if args.maps:
+        methods = [m.strip() for m in args.methods.split(",") if m.strip() in MAP_METHODS] or list(MAP_METHODS)
+        report = run_maps(args.maps, methods, config, args.out, header)
+    else:
+        report = run_scaling(args.map_scaling, args.tiles, config, args.out, header.replace(
+            "scan-to-map benchmark", "map scaling benchmark") + " The map is tiled: identical copies "
+            f"{TILE_SPACING:.0f} m apart, each turned about the vertical; a pose counts as correct against any copy.")
+    print(report)
     return 0
 
 
