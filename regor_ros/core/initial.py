@@ -50,7 +50,7 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig) -> np.
     """One pose per seed from its two-stage consensus set and local spectral matching; (S, 4, 4)."""
     n = len(src)
     d = cfg.compatibility_threshold
-    residual = length_residual(src, tgt).astype(np.float32)
+    residual = length_residual(src, tgt, np.float32)
     soft = np.maximum(0.0, 1.0 - residual ** 2 / d ** 2)
     hard = (residual < d).astype(np.float32)
     tight = (residual < d / 2).astype(np.float32)
