@@ -28,3 +28,10 @@ def test_each_state_has_its_level_and_reason():
     values = {kv.key: kv.value for kv in withheld.values}
     assert values["last verdict"] == "rejected" and values["seconds total"] == "1.5"
     assert values["source_clouds"] == "2"
+
+
+def test_map_mode_reports_the_prepared_map():
+    prepared = status(counters={"source_clouds": 1, "target_clouds": 1}, last_summary={**SUMMARY, "accepted": True},
+                      map_info={"map_points": 207000, "map_keypoints": 42687, "map_preparation_seconds": 1.6})
+    values = {kv.key: kv.value for kv in prepared.values}
+    assert values["map_keypoints"] == "42687" and values["map_preparation_seconds"] == "1.6"

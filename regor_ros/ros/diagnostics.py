@@ -24,6 +24,7 @@ class Health:
     last_bad_input: str = ""               # the last malformed cloud since the last registration
     last_summary: Optional[dict] = None    # RegistrationResult.summary() of the last registration
     counters: Dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
+    map_info: Dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
 
 
 def _value(v) -> str:
@@ -47,7 +48,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
-    values = dict(health.counters)
+    values = {**health.counters, **health.map_info}
     if summary is not None:
         visibility = summary["visibility"]
         values.update({

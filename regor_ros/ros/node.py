@@ -71,7 +71,6 @@ class RegisterNode(Node):
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_key = None  # (target serial, viewpoint, feature settings) of the cached map
-        self._map_info = {}        # the prepared map's size and preparation time, for status
         self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
         self.stats = {"source_clouds": 0, "target_clouds": 0, "registrations": 0, "accepted_poses": 0,
                       "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
@@ -229,7 +228,7 @@ class RegisterNode(Node):
             self._prepared_target, self._prepared_key = prepared, key
             if prepared is not None:
                 self.stats["map_preparations"] += 1
-                self._map_info = {"map_points": prepared.input_size, "map_keypoints": len(prepared),
+                self.health.map_info = {"map_points": prepared.input_size, "map_keypoints": len(prepared),
                                   "map_exact_search": prepared.index.exact,
                                   "map_preparation_seconds": round(seconds, 3)}
         if prepared is not None:
@@ -278,7 +277,7 @@ class RegisterNode(Node):
                 self._hint = None  # the robot is found: the hint has done its job
             extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
                      "mode": settings.mode, **self.stats,
-                     **(self._map_info if settings.mode == "map" else {}),
+                     **(self.health.map_info if settings.mode == "map" else {}),
                      "search_region": None if region is None else {
                          "centre": [float(v) for v in region.centre], "radius": region.radius}}
         header = Header(stamp=src.header.stamp, frame_id=tgt.header.frame_id)

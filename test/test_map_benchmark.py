@@ -1,0 +1,60 @@
+"""regor-bench --maps and --map-scaling end to end on a real sequence cut to two queries."""
+import csv
+import json
+
+import numpy as np
+
+from regor_ros.tools.benchmark import main
+from regor_ros.tools.map_benchmark import tiled
+
+from conftest import DATA, require_shared_data
+
+SEQUENCE = "fastlio_avia_hku2"
+QUERIES = ["scan_000005", "scan_000039"]  # one Regor registers, one it does not (measured)
+
+
+def short_sequence(root):
+    """The real sequence with only QUERIES, as a maps folder of its own."""
+    require_shared_data("the map benchmark tests")
+    source = DATA / "maps" / SEQUENCE
+    folder = root / "maps" / SEQUENCE
+    (folder / "queries").mkdir(parents=True)
+    (folder / "map.npy").symlink_to(source / "map.npy")
+    listing = [q for q in json.loads((source / "queries.json").read_text()) if q["id"] in QUERIES]
+    (folder / "queries.json").write_text(json.dumps(listing))
+    for query in QUERIES:
+        (folder / "queries" / query).symlink_to(source / "queries" / query)
+    return folder
+
+
+def test_maps_mode_registers_every_query_and_writes_its_reports(tmp_path):
+    folder = short_sequence(tmp_path)
+    assert main(["--maps", str(folder.parent), "--methods", "regor,kiss-matcher", "--out", str(tmp_path / "out")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "maps.csv")))
+    assert [(r["method"], r["query"]) for r in rows] == [(m, q) for m in ("regor", "kiss-matcher") for q in QUERIES]
+    regor = {r["query"]: r for r in rows if r["method"] == "regor"}
+    assert regor["scan_000005"]["success"] == "True" and regor["scan_000005"]["accepted"] == "True"
+    assert regor["scan_000039"]["accepted"] == "False"        # wrong there: not published
+    assert float(regor["scan_000005"]["map_seconds"]) > 0 and int(regor["scan_000005"]["map_keypoints"]) > 10000
+    assert all(0.1 < float(r["peak_memory_gb"]) < 5 for r in rows)
+    report = (tmp_path / "out" / "maps.md").read_text()
+    assert f"| {SEQUENCE} | regor | 1/2 | 1 / 0 |" in report
+    assert (tmp_path / "out" / "maps.png").stat().st_size > 1000
+
+
+def test_map_scaling_tiles_the_map_and_scores_against_any_copy(tmp_path):
+    folder = short_sequence(tmp_path)
+    assert main(["--map-scaling", str(folder), "--tiles", "1", "2", "--out", str(tmp_path / "out")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "map_scaling.csv")))
+    assert [int(r["tiles"]) for r in rows] == [1, 2]
+    assert int(rows[1]["map_points"]) == 2 * int(rows[0]["map_points"])
+    assert int(rows[0]["queries"]) == 2 and int(rows[0]["correct"]) >= 1 and int(rows[1]["correct"]) >= 1
+
+
+def test_tiles_are_turned_copies_far_apart():
+    cloud = np.random.default_rng(0).uniform(-10, 10, (100, 3))
+    big, poses = tiled(cloud, 3)
+    assert big.shape == (300, 3) and len(poses) == 3
+    for k, pose in enumerate(poses):
+        np.testing.assert_allclose(big[100 * k:100 * (k + 1)], cloud @ pose[:3, :3].T + pose[:3, 3])
+    assert np.linalg.norm(poses[1][:3, 3] - poses[0][:3, 3]) >= 400.0
