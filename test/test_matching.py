@@ -14,7 +14,7 @@ def unit_rows(rng, n):
 
 def cloud(features):
     """What matching reads of a prepared cloud: its features and their exact index."""
-    return SimpleNamespace(features=features, index=FeatureIndex(features, len(features), 1))
+    return SimpleNamespace(features=features, index=FeatureIndex(features, len(features), 1, 1))
 
 
 def test_gmm_contains_mutual_matches_and_at_most_two_pairs_per_point():

@@ -13,7 +13,7 @@ from conftest import random_motion
 def cloud(points):
     features = np.zeros((len(points), 33), np.float32)
     return PreparedCloud(points, np.zeros_like(points), features, cKDTree(points),
-                         FeatureIndex(features, 100, 1), FeatureConfig(), len(points))
+                         FeatureIndex(features, 100, 1, 1), FeatureConfig(), len(points))
 
 
 def region_problem():

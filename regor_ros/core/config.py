@@ -38,8 +38,10 @@ class FeatureConfig:
     min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
     exact_search_limit: int = _param(50000, "feature search is exact against clouds of up to this many keypoints (a scan); "
                                      "a larger cloud (a map) gets an approximate index, built once when it is prepared", 0, 100000000)
-    search_probes: int = _param(128, "cells of the approximate feature index scanned per query: more finds more of "
-                                "the exact candidates, slower (128: 99.8 % of them on real maps)", 1, 100000)
+    search_probes: int = _param(128, "cells of the approximate feature index scanned for a keypoint's K candidates: "
+                                "more finds more of the exact candidates, slower (128: 99.8 % of them on a real map)", 1, 100000)
+    search_probes_nearest: int = _param(64, "cells of the approximate feature index scanned for a keypoint's nearest "
+                                        "neighbour (64: 99.8 % of the exact ones on a real map)", 1, 100000)
     range_image_resolution: float = _param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
                                            "for the free-space check (coarser than the sensor's own resolution) [deg]", 0.05, 10.0)
 

@@ -132,6 +132,7 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> 
     normals = np.asarray(down.normals, dtype=np.float64)
     image = None if vp is None else RangeImage.build(points, vp, config.range_image_resolution)
     features = np.ascontiguousarray(features)
-    index = FeatureIndex(features, config.exact_search_limit, config.search_probes)
+    index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
+                         config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
                          len(points), image)
