@@ -36,8 +36,9 @@ class FeatureConfig:
     remove_ground: bool = _param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
                                  "its rings make unrelated scans look aligned at the same sensor position (deviation; outdoor preset only)")
     min_points: int = _param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
-    exact_search_limit: int = _param(50000, "feature search is exact against clouds of up to this many keypoints (a scan); "
-                                     "a larger cloud (a map) gets an approximate index, built once when it is prepared", 0, 100000000)
+    exact_search_limit: int = _param(20000, "feature search is exact against clouds of up to this many keypoints (a scan: "
+                                     "the shared pairs have up to 13.6 k); a larger cloud (a map) gets an approximate "
+                                     "index, built once when it is prepared", 0, 100000000)
     search_probes: int = _param(128, "cells of the approximate feature index scanned for a keypoint's K candidates: "
                                 "more finds more of the exact candidates, slower (128: 99.8 % of them on a real map)", 1, 100000)
     search_probes_nearest: int = _param(64, "cells of the approximate feature index scanned for a keypoint's nearest "
