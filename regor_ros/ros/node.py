@@ -228,9 +228,9 @@ class RegisterNode(Node):
             self._prepared_target, self._prepared_key = prepared, key
             if prepared is not None:
                 self.stats["map_preparations"] += 1
-                self.health.map_info = {"map_points": prepared.input_size, "map_keypoints": len(prepared),
-                                  "map_exact_search": prepared.index.exact,
-                                  "map_preparation_seconds": round(seconds, 3)}
+                self.health.map_info = {
+                    "map_points": prepared.input_size, "map_keypoints": len(prepared),
+                    "map_exact_search": prepared.index.exact, "map_preparation_seconds": round(seconds, 3)}
         if prepared is not None:
             self.get_logger().info(f"map prepared: {prepared.input_size} points, {len(prepared)} keypoints "
                                    f"in {seconds:.1f} s")
