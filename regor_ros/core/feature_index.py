@@ -58,9 +58,8 @@ class FeatureIndex:
         ``features`` are those rows' features. Up to the exact limit a new exact index (its cost
         follows the rows); beyond it this index's own cells, filtered to the rows (no new
         training per call)."""
-        exact_limit, probes, nearest_probes = self._limits
-        if len(rows) <= exact_limit or self.exact:
-            return FeatureIndex(features, max(exact_limit, len(rows)), probes, nearest_probes)
+        if len(rows) <= self._limits[0]:  # also whenever this index is exact: rows <= its size
+            return FeatureIndex(features, *self._limits)
         view = object.__new__(FeatureIndex)
         view.size, view.exact, view._limits, view._index = len(rows), False, self._limits, self._index
         view._rows = np.ascontiguousarray(rows, dtype=np.int64)

@@ -138,8 +138,10 @@ def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfi
         if retry.accepted:
             result = _undo_turn(retry, turn)
     result.attempts = attempts
-    if result.accepted and search_region is not None and outside(result.transform, search_region):
-        result.accepted, result.reason = False, outside(result.transform, search_region)
+    if result.accepted and search_region is not None:
+        reason = outside(result.transform, search_region)
+        if reason:
+            result.accepted, result.reason = False, reason
     if result.accepted and config.acceptance.reverse_check:
         _check_reverse(result, prepared_source, target, config)
     result.timings["features"] += prepare_seconds

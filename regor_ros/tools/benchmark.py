@@ -32,6 +32,7 @@ from ..core.visibility import ORIGIN
 from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_rigid_motion,
                             rotation_error_deg, translation_error)
 from .peers import DESCRIPTIONS, METHODS
+from .register_cli import parse_overrides
 
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total", "seconds_verification", "inliers_final",
@@ -317,8 +318,8 @@ def main(argv=None) -> int:
             parser.error(f"{folder} has no pairs.json")
     seeds = args.rotate or [None]
     pairs = [p for folder in args.data for p in load_pairs(folder, args.pairs)]
-    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
     try:  # overrides apply to the presets of the kinds present
+        overrides = parse_overrides(args.set)
         presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p.kind for p in pairs}}
     except ConfigError as exc:
         parser.error(str(exc))
@@ -338,7 +339,7 @@ def main(argv=None) -> int:
               flush=True)
 
     summary = summarise(rows)
-    command = "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = _command(argv)
     header = (f"# regor_ros benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
               f"Command: `{command}`  \nData: {', '.join(f'`{d}`' for d in args.data)} ({len(pairs)} pairs"
               f"{'; cross-place: each source against one target of every other place per seed, no true pose' if args.mismatched else ''}), rotation seeds: "
@@ -360,17 +361,20 @@ def main(argv=None) -> int:
     return 0
 
 
+def _command(argv) -> str:
+    """The command line as run, for the report's header."""
+    return "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
+
+
 def _map_main(args, argv) -> int:
     """--maps and --map-scaling: the outdoor preset (every map here is LiDAR) with --set overrides."""
     from .map_benchmark import MAP_METHODS, TILE_SPACING, run_maps, run_scaling
-    overrides = dict(item.split("=", 1) for item in args.set if "=" in item)
     try:
-        config = RegorConfig.preset("outdoor").replace(overrides)
+        config = RegorConfig.preset("outdoor").replace(parse_overrides(args.set))
     except ConfigError as exc:
         raise SystemExit(f"regor-bench: {exc}")
-    command = "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
     header = (f"# regor_ros scan-to-map benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
-              f"Command: `{command}`  \nOutdoor preset; success: RE < 5 deg and TE < 60 cm against "
+              f"Command: `{_command(argv)}`  \nOutdoor preset; success: RE < 5 deg and TE < 60 cm against "
               "the sequence's SLAM pose. Regor prepares the map once (its time is the preparation "
               "column) and registers each query against it; KISS-Matcher is given the scan and the map "
               "on every call. Peak memory is the resident peak of the process that ran the method.")

@@ -118,11 +118,15 @@ def map_report(rows: List[dict], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_csv(rows: List[dict], path: Path, fields: List[str]) -> None:
-    with open(path, "w", newline="") as f:
+def _write_results(out: Path, stem: str, report: str, rows: List[dict], fields: List[str], plot) -> None:
+    """<stem>.md, .csv and .png in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{stem}.md").write_text(report)
+    with open(out / f"{stem}.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
+    plot(rows, out / f"{stem}.png")
 
 
 def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str) -> str:
@@ -135,11 +139,8 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
         for method in methods:
             rows += _in_child(_run_sequence, (str(sequence), method, config))
             print(f"{sequence.name} {method}: {sum(r['success'] for r in rows if r['method'] == method and r['sequence'] == sequence.name)} correct", flush=True)
-    out.mkdir(parents=True, exist_ok=True)
     report = map_report(rows, header)
-    (out / "maps.md").write_text(report)
-    write_csv(rows, out / "maps.csv", MAP_FIELDS)
-    _plot_maps(rows, out / "maps.png")
+    _write_results(out, "maps", report, rows, MAP_FIELDS, _plot_maps)
     return report
 
 
@@ -224,10 +225,7 @@ def run_scaling(folder: Path, tiles: List[int], config: RegorConfig, out: Path, 
                      f"{r['median_seconds']:.2f} ({r['median_matching_seconds']:.2f}) | "
                      f"{r['correct']}/{r['queries']} ({r['published_correct']}) | {r['peak_memory_gb']:.2f} |")
     report = "\n".join(lines) + "\n"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "map_scaling.md").write_text(report)
-    write_csv(rows, out / "map_scaling.csv", SCALING_FIELDS)
-    _plot_scaling(rows, out / "map_scaling.png")
+    _write_results(out, "map_scaling", report, rows, SCALING_FIELDS, _plot_scaling)
     return report
 
 
