@@ -1,7 +1,9 @@
 import numpy as np
 
-from regor_ros.core.consistency import (leading_eigenvector, length_residual,
-                                        second_order_scores, top_k_stable)
+from scipy import sparse
+
+from regor_ros.core.consistency import (compatibility, leading_eigenvector, length_residual,
+                                        second_order, second_order_scores, top_k_stable)
 from regor_ros.core.estimate import transform_points
 
 from conftest import random_motion
@@ -43,3 +45,18 @@ def test_top_k_stable_matches_a_stable_descending_sort():
     for scores in (small, large):
         np.testing.assert_array_equal(top_k_stable(scores, 6),
                                       np.argsort(-scores, axis=1, kind="stable")[:, :6])
+
+
+def test_compatibility_by_blocks_and_its_sparse_second_order_match_the_dense_definition():
+    # 600 rows span three residual blocks; a tight threshold leaves the tight matrix sparse
+    src, tgt = clique_problem(inliers=20, outliers=580)
+    r = length_residual(src, tgt, np.float32)
+    for d in (0.01, 1.0):  # sparse, then dense
+        soft, hard, tight = compatibility(src, tgt, d)
+        np.testing.assert_array_equal(soft, np.maximum(0.0, 1.0 - r ** 2 / d ** 2))
+        np.testing.assert_array_equal(hard, (r < d).astype(np.float32))
+        dense_tight = (r < d / 2).astype(np.float32)
+        assert sparse.issparse(tight) == (d == 0.01)
+        rows = np.arange(0, 600, 7)
+        np.testing.assert_array_equal(second_order(tight, hard, rows),
+                                      (dense_tight[rows] @ dense_tight) * hard[rows])

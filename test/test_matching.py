@@ -66,6 +66,10 @@ def test_mutual_flags_and_similarities_agree_with_the_full_matrix():
     np.testing.assert_allclose(m.similarity, sim.max(axis=1), rtol=1e-6)
     np.testing.assert_array_equal(m.mutual, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))
     assert 0 < m.mutual.sum() <= 300
+    unflagged = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64),
+                               mutual=False)
+    assert unflagged.mutual is None  # the second search is skipped, the matches are the same
+    np.testing.assert_array_equal(unflagged.target_index, m.target_index)
 
 
 def test_best_subset_takes_mutual_matches_first():

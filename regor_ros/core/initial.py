@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
 from .config import InitialConfig
-from .consistency import leading_eigenvector, length_residual, top_k_stable
+from .consistency import compatibility, leading_eigenvector, second_order, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
 from .matching import FeatureMatches
@@ -50,18 +50,14 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig) -> np.
     """One pose per seed from its two-stage consensus set and local spectral matching; (S, 4, 4)."""
     n = len(src)
     d = cfg.compatibility_threshold
-    residual = length_residual(src, tgt, np.float32)
-    soft = np.maximum(0.0, 1.0 - residual ** 2 / d ** 2)
-    hard = (residual < d).astype(np.float32)
-    tight = (residual < d / 2).astype(np.float32)
-    del residual
+    soft, hard, tight = compatibility(src, tgt, d)
 
     confidence = leading_eigenvector(soft, cfg.power_iterations)
     seeds = select_seeds(confidence, src, cfg.nms_radius, max(1, int(cfg.seed_ratio * n)))
 
     k1, k2 = (cfg.k1, cfg.k2) if cfg.k1 <= n else (4, 4)
     k1, k2 = min(k1, n), min(k2, n)
-    sc2 = (tight[seeds] @ tight) * hard[seeds]                          # (S, n)
+    sc2 = second_order(tight, hard, seeds)                               # (S, n)
     first = top_k_stable(sc2, k1)                                        # C1, best first
     hard_first = hard[first[:, :, None], first[:, None, :]]              # (S, k1, k1)
     # second stage: agreement with the best member c* of C1, through C1
