@@ -41,6 +41,12 @@ def test_mismatched_mode_counts_accepted_poses_across_places(tmp_path, capsys):
         accepted = sum(r["accepted"] == "True" for r in rows if r["method"] == method)
         assert f"| all | {method} | 0.0 % | 0/2 |" in report
         assert report.split(f"| all | {method} |")[1].split("\n")[0].endswith(f"| 0 / {accepted} |")
+    # Regor's stages are timed per run and their medians reported; the peer has no stages
+    regor = [r for r in rows if r["method"] == "regor"]
+    assert all(float(r["seconds_initial"]) > 0 and float(r["seconds_matching"]) > 0 for r in regor)
+    stages = report.split("Median seconds per stage")[1].split("\n\n")[1].splitlines()
+    assert stages[0] == "| kind | method | features | matching | initial | regeneration | estimation | verification |"
+    assert [line.split(" | ")[:2] for line in stages[2:]] == [["| indoor", "regor"], ["| all", "regor"]]
 
 
 def test_benchmark_command_writes_table_csv_and_plot(two_pairs, tmp_path, capsys):

@@ -34,8 +34,10 @@ from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_
 from .peers import DESCRIPTIONS, METHODS
 from .register_cli import parse_overrides
 
+STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
-              "translation_error_m", "seconds_registration", "seconds_total", "seconds_verification", "inliers_final",
+              "translation_error_m", "seconds_registration", "seconds_total",
+              *(f"seconds_{stage}" for stage in STAGES), "inliers_final",
               "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
               "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals", "error"]
 
@@ -112,8 +114,8 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
         })
         if out.figures is not None:
             visibility = out.figures["visibility"]
+            row.update({f"seconds_{stage}": out.figures["timings"][stage] for stage in STAGES})
             row.update({"reason": out.figures["reason"], "num_inliers": out.figures["num_inliers"],
-                        "seconds_verification": out.figures["timings"]["verification"],
                         "fitness": out.figures["fitness"], "feature_inliers": out.figures["feature_inliers"],
                         "free_space_source": visibility["source_violation"],
                         "free_space_target": visibility["target_violation"],
@@ -197,6 +199,8 @@ def summarise(rows: List[dict]) -> Dict:
             "median_s": float(np.median([r["seconds_total"] for r in timed])) if timed else float("nan"),
             "p90_s": float(np.percentile([r["seconds_total"] for r in timed], 90)) if timed else float("nan"),
             "median_reg_s": float(np.median([r["seconds_registration"] for r in timed])) if timed else float("nan"),
+            "stage_s": {stage: float(np.median([r[f"seconds_{stage}"] for r in timed]))
+                        for stage in STAGES if timed and all(f"seconds_{stage}" in r for r in timed)},
             "accepted": len(accepted) if rs[0]["accepted"] != "" else None,
             "false_accepts": sum(1 for r in accepted if not r["success"]) if rs[0]["accepted"] != "" else None,
         }
@@ -223,6 +227,16 @@ def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -
                 f"{_fmt(s['te_cm'], '.1f')} | {_fmt(100 * s['ip'], '.1f')} | {_fmt(s['in'], '.0f')} | "
                 f"{_fmt(s['inr'], '.0f')} | {_fmt(s['median_s'], '.2f')} ({_fmt(s['median_reg_s'], '.2f')}) | "
                 f"{_fmt(s['p90_s'], '.2f')} | {acc} |")
+    staged = [(kind, method) for kind in kinds for method in methods
+              if summary.get((method, kind), {}).get("stage_s")]
+    if staged:
+        lines += ["", "Median seconds per stage (FPFH of both clouds, then the stages of the attempt "
+                  "returned; retries re-run them):", "",
+                  "| kind | method | features | " + " | ".join(STAGES) + " |", "|" + "---|" * (len(STAGES) + 3)]
+        for kind, method in staged:
+            s = summary[(method, kind)]
+            lines.append(f"| {kind} | {method} | {_fmt(s['median_s'] - s['median_reg_s'], '.2f')} | "
+                         + " | ".join(_fmt(s["stage_s"][stage], ".3f") for stage in STAGES) + " |")
     fmr = {kind: summary[(methods[0], kind)]["fmr"] for kind in kinds}
     lines += ["", "FMR (initial FPFH matches more than 5 % correct): " +
               ", ".join(f"{k} {v:.0f} %" for k, v in fmr.items()), ""]
