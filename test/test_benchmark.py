@@ -64,9 +64,13 @@ def test_benchmark_command_writes_table_csv_and_plot(two_pairs, tmp_path, capsys
     assert (out / "benchmark.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_unknown_method_is_refused(two_pairs):
+def test_unknown_method_is_refused(two_pairs, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(two_pairs), "--methods", "icp"])
+    # a peer the map benchmark cannot run is refused too, not silently dropped
+    with pytest.raises(SystemExit):
+        main(["--maps", str(tmp_path), "--methods", "regor,o3d-ransac"])
+    assert "'o3d-ransac'" in capsys.readouterr().err
 
 
 def row(seed, method, kind, success, accepted=""):

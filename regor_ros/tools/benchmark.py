@@ -297,8 +297,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("data", type=Path, nargs="*",
                         help="folders with pairs.json and one folder per pair")
-    parser.add_argument("--methods", default=",".join(METHODS),
-                        help=f"comma-separated subset of: {', '.join(METHODS)}")
+    parser.add_argument("--methods", help=f"comma-separated subset of: {', '.join(METHODS)} (default: "
+                                          "all; with --maps or --map-scaling: regor, kiss-matcher)")
     parser.add_argument("--rotate", type=int, nargs="+", metavar="SEED",
                         help="move each source by a random rigid motion drawn from SEED; several "
                              "seeds give a mean and spread")
@@ -319,14 +319,11 @@ def main(argv=None) -> int:
                         help="copies of the map for --map-scaling (default 1 2 4 7)")
     args = parser.parse_args(argv)
     if args.maps or args.map_scaling:
-        return _map_main(args, argv)
+        return _map_main(args, argv, parser)
     if not args.data:
         parser.error("give one or more folders of pairs, or --maps / --map-scaling")
 
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        parser.error(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
+    methods = _methods(args.methods, METHODS, parser)
     for folder in args.data:
         if not (folder / "pairs.json").is_file():
             parser.error(f"{folder} has no pairs.json")
@@ -380,7 +377,20 @@ def _command(argv) -> str:
     return "regor-bench " + " ".join(sys.argv[1:] if argv is None else argv)
 
 
-def _map_main(args, argv) -> int:
+def _methods(requested: Optional[str], available, parser) -> List[str]:
+    """The methods named by --methods (all available ones when not given); an unknown or
+    unsupported name is an error, not silently dropped."""
+    if requested is None:
+        return list(available)
+    methods = [m.strip() for m in requested.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in available]
+    if unknown or not methods:
+        parser.error(f"unknown or unsupported method {(unknown or [requested])[0]!r} here; choose from "
+                     f"{', '.join(available)}")
+    return methods
+
+
+def _map_main(args, argv, parser) -> int:
     """--maps and --map-scaling: the outdoor preset (every map here is LiDAR) with --set overrides."""
     from .map_benchmark import MAP_METHODS, TILE_SPACING, run_maps, run_scaling
     try:
@@ -393,8 +403,7 @@ def _map_main(args, argv) -> int:
               "column) and registers each query against it; KISS-Matcher is given the scan and the map "
               "on every call. Peak memory is the resident peak of the process that ran the method.")
     if args.maps:
-        methods = [m.strip() for m in args.methods.split(",") if m.strip() in MAP_METHODS] or list(MAP_METHODS)
-        report = run_maps(args.maps, methods, config, args.out, header)
+        report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out, header)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header.replace(
             "scan-to-map benchmark", "map scaling benchmark") + " The map is tiled: identical copies "
