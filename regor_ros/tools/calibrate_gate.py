@@ -132,7 +132,7 @@ def fit(samples: List[Sample], kind: str):
 def families(samples: List[Sample]) -> List[str]:
     """Places, with places that may be one (a prefix of another) merged."""
     out: List[str] = []
-    for name in sorted({p for s in samples for p in s.places}, key=len):
+    for name in sorted({p for s in samples for p in s.places}, key=lambda p: (len(p), p)):
         if not any(same_place(name, f) for f in out):
             out.append(name)
     return out
