@@ -12,7 +12,6 @@ are identical, so a pose is scored against the nearest copy's truth.
 """
 from __future__ import annotations
 
-import csv
 import json
 import multiprocessing
 import resource
@@ -25,6 +24,7 @@ import numpy as np
 from ..core import RegorConfig, prepare_cloud, register
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
+from .benchmark import write_results
 
 MAP_METHODS = ("regor", "kiss-matcher")
 MAP_FIELDS = ["sequence", "method", "query", "kind", "map_points", "map_keypoints", "success", "accepted",
@@ -118,17 +118,6 @@ def map_report(rows: List[dict], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _write_results(out: Path, stem: str, report: str, rows: List[dict], fields: List[str], plot) -> None:
-    """<stem>.md, .csv and .png in ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{stem}.md").write_text(report)
-    with open(out / f"{stem}.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-    plot(rows, out / f"{stem}.png")
-
-
 def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str) -> str:
     """Every sequence under ``folder`` with every method; writes maps.md, .csv and .png."""
     sequences = sorted(p for p in folder.iterdir() if (p / "queries.json").is_file())
@@ -140,7 +129,7 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
             rows += _in_child(_run_sequence, (str(sequence), method, config))
             print(f"{sequence.name} {method}: {sum(r['success'] for r in rows if r['method'] == method and r['sequence'] == sequence.name)} correct", flush=True)
     report = map_report(rows, header)
-    _write_results(out, "maps", report, rows, MAP_FIELDS, _plot_maps)
+    write_results(out, "maps", report, rows, MAP_FIELDS, _plot_maps)
     return report
 
 
@@ -225,7 +214,7 @@ def run_scaling(folder: Path, tiles: List[int], config: RegorConfig, out: Path, 
                      f"{r['median_seconds']:.2f} ({r['median_matching_seconds']:.2f}) | "
                      f"{r['correct']}/{r['queries']} ({r['published_correct']}) | {r['peak_memory_gb']:.2f} |")
     report = "\n".join(lines) + "\n"
-    _write_results(out, "map_scaling", report, rows, SCALING_FIELDS, _plot_scaling)
+    write_results(out, "map_scaling", report, rows, SCALING_FIELDS, _plot_scaling)
     return report
 
 
