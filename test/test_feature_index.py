@@ -55,3 +55,25 @@ def test_a_restricted_view_only_returns_its_rows_as_positions():
         found, _ = view.search(queries, 3)
         assert found.min() >= 0 and found.max() < count
         assert np.mean(found[:, 0] == np.arange(0, count, 4)) > 0.95  # a row finds itself
+
+
+def test_the_by_cell_nearest_scan_finds_what_faiss_finds_in_the_same_cells():
+    """The nearest neighbour comes from CellTable's by-cell scan, not FAISS's query-by-query scan;
+    over the same probed cells both must find the same best similarity, for the whole index and
+    for a restricted view."""
+    import faiss
+    rng = np.random.default_rng(2)
+    data, queries = unit_rows(rng, 30000), unit_rows(rng, 3000)
+    index = FeatureIndex(data, exact_limit=1000, probes=32, nearest_probes=8)
+    rows = np.sort(rng.choice(30000, 12000, replace=False))
+    view = index.restricted(rows, data[rows])
+    for searched, selector, ids in ((index, None, np.arange(30000)), (view, view._selector, rows)):
+        found, similarity = searched.search(queries, 1)
+        params = faiss.SearchParametersIVF(nprobe=8)
+        if selector is not None:
+            params.sel = selector
+        faiss_similarity, faiss_found = index._index.search(queries, 1, params=params)
+        np.testing.assert_allclose(similarity, faiss_similarity, rtol=0, atol=1e-6)  # float rounding
+        np.testing.assert_allclose(similarity[:, 0], np.einsum("ij,ij->i", queries, data[ids[found[:, 0]]]),
+                                   rtol=1e-5)
+        assert np.mean(ids[found[:, 0]] == faiss_found[:, 0]) > 0.99  # random data: ties are rare

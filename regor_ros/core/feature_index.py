@@ -9,6 +9,13 @@ scans only the cells nearest to it. Measured on the real scan-to-map data (MulRa
 map keypoints), 128 cells return 99.8 % of the exact K = 100 candidates (by similarity) and 64
 cells 99.8 % of the exact nearest neighbours (99.97 % with 128, at twice the time).
 
+A nearest neighbour for every scan keypoint (about 14 k) is most of the work against a map.
+FAISS scans the probed cells query by query, so each query streams its cells' rows from memory;
+``CellTable`` turns the loop around: for each cell, all queries that probe it are compared with
+its rows in one matrix product, and each query keeps the best it has seen. The probed cells and
+the rows compared are the same as FAISS's, so the nearest neighbours are too (up to ties); on a
+582 k-keypoint map the scan took 0.50 s instead of 1.26 s.
+
 Features are unit vectors: inner product ranks them as the feature distance does.
 """
 from __future__ import annotations
@@ -24,11 +31,61 @@ TRAINING_PER_CELL = 64    # training sample per cell (all rows if fewer)
 KMEANS_SEED = 1234
 
 
+class CellTable:
+    """An inverted file's rows grouped by cell in one array, for a by-cell nearest-neighbour scan."""
+
+    def __init__(self, quantizer, ids: np.ndarray, features: np.ndarray, bounds: np.ndarray):
+        self.quantizer = quantizer  # FAISS index over the cell centres: which cells a query probes
+        self.ids = ids              # (M,) index rows, cell by cell
+        self.features = features    # (M, D) their features
+        self.bounds = bounds        # (cells + 1,) cell c holds rows bounds[c]:bounds[c + 1]
+
+    @classmethod
+    def of(cls, ivf, features: np.ndarray) -> "CellTable":
+        """The layout of a filled FAISS inverted file (its cells, in its order)."""
+        lists = ivf.invlists
+        cells = ivf.nlist
+        sizes = np.array([lists.list_size(c) for c in range(cells)], dtype=np.int64)
+        ids = np.concatenate([faiss.rev_swig_ptr(lists.get_ids(c), int(sizes[c])).copy()
+                              for c in range(cells) if sizes[c]] or [np.zeros(0, np.int64)])
+        return cls(ivf.quantizer, ids, features[ids],
+                   np.concatenate([[0], np.cumsum(sizes)]))
+
+    def subset(self, member: np.ndarray) -> "CellTable":
+        """The table of the rows whose ``member`` flag is set, in the same cells."""
+        cells = len(self.bounds) - 1
+        cell_of_row = np.repeat(np.arange(cells), np.diff(self.bounds))
+        keep = member[self.ids]
+        return CellTable(self.quantizer, self.ids[keep], self.features[keep],
+                         np.searchsorted(cell_of_row[keep], np.arange(cells + 1)))
+
+    def nearest(self, queries: np.ndarray, probes: int) -> Tuple[np.ndarray, np.ndarray]:
+        """The most similar row among each query's probed cells: (ids (Q,), -1 when none;
+        similarity (Q,), -inf when none). Ties go to the lower cell, then the lower id."""
+        probed = self.quantizer.search(queries, min(probes, len(self.bounds) - 1))[1]
+        query = np.repeat(np.arange(len(queries)), probed.shape[1])
+        cell = probed.ravel()
+        order = np.argsort(cell, kind="stable")
+        query, cell = query[order], cell[order]
+        starts = np.searchsorted(cell, np.arange(len(self.bounds)))
+        best = np.full(len(queries), -np.inf, dtype=np.float32)
+        found = np.full(len(queries), -1, dtype=np.int64)
+        for c in np.flatnonzero((np.diff(starts) > 0) & (np.diff(self.bounds) > 0)):
+            asking = query[starts[c]:starts[c + 1]]
+            similarity = queries[asking] @ self.features[self.bounds[c]:self.bounds[c + 1]].T
+            column = similarity.argmax(axis=1)
+            value = similarity[np.arange(len(asking)), column]
+            better = value > best[asking]
+            best[asking[better]] = value[better]
+            found[asking[better]] = self.ids[self.bounds[c] + column[better]]
+        return found, best
+
+
 class FeatureIndex:
     """Inner-product search over (N, D) unit features: exact up to ``exact_limit`` rows, an
-    inverted file beyond, scanning ``probes`` cells per query for K candidates and
+    inverted file beyond, scanning ``probes`` cells per query for K candidates (FAISS) and
     ``nearest_probes`` for a nearest neighbour alone (the first is found in fewer cells than the
-    hundredth)."""
+    hundredth; by cell, ``CellTable``)."""
 
     def __init__(self, features: np.ndarray, exact_limit: int, probes: int, nearest_probes: int):
         features = np.ascontiguousarray(features, dtype=np.float32)
@@ -38,6 +95,7 @@ class FeatureIndex:
         self._limits = (exact_limit, probes, nearest_probes)
         self._rows: Optional[np.ndarray] = None  # a restricted view: the parent's rows it searches
         self._selector = None
+        self._cells: Optional[CellTable] = None
         if self.exact:
             self._index = faiss.IndexFlatIP(dim)
         else:
@@ -49,6 +107,8 @@ class FeatureIndex:
             rows = np.random.default_rng(KMEANS_SEED).choice(n, sample, replace=False) if sample < n else slice(None)
             self._index.train(features[rows])
         self._index.add(features)
+        if not self.exact:
+            self._cells = CellTable.of(self._index, features)
 
     def __len__(self) -> int:
         return self.size
@@ -67,6 +127,7 @@ class FeatureIndex:
         member[view._rows] = True
         view._bitmap = np.packbits(member, bitorder="little")  # kept alive for the selector
         view._selector = faiss.IDSelectorBitmap(self.size, faiss.swig_ptr(view._bitmap))
+        view._cells = self._cells.subset(member)
         return view
 
     def search(self, queries: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
@@ -81,10 +142,13 @@ class FeatureIndex:
             similarity, index = self._index.search(queries, k)
             return index.astype(np.int64), similarity
         _, probes, nearest_probes = self._limits
-        params = faiss.SearchParametersIVF(nprobe=nearest_probes if k == 1 else probes)
-        if self._selector is not None:
-            params.sel = self._selector
-        similarity, index = self._index.search(queries, k, params=params)
+        if k == 1:
+            index, similarity = (a[:, None] for a in self._cells.nearest(queries, nearest_probes))
+        else:
+            params = faiss.SearchParametersIVF(nprobe=probes)
+            if self._selector is not None:
+                params.sel = self._selector
+            similarity, index = self._index.search(queries, k, params=params)
         if self._rows is not None:
             found = index >= 0
             index[found] = np.searchsorted(self._rows, index[found])
