@@ -36,9 +36,14 @@ def test_maps_mode_registers_every_query_and_writes_its_reports(tmp_path):
     assert regor["scan_000005"]["success"] == "True" and regor["scan_000005"]["accepted"] == "True"
     assert regor["scan_000039"]["accepted"] == "False"        # wrong there: not published
     assert float(regor["scan_000005"]["map_seconds"]) > 0 and int(regor["scan_000005"]["map_keypoints"]) > 10000
+    # the gate's figures are recorded whatever the verdict: the scan's free space (the map has no viewpoint)
+    assert int(regor["scan_000005"]["feature_inliers"]) > int(regor["scan_000039"]["feature_inliers"])
+    assert float(regor["scan_000005"]["free_space_source"]) < float(regor["scan_000039"]["free_space_source"])
+    assert 0 < float(regor["scan_000005"]["seconds_matching"]) < float(regor["scan_000005"]["seconds"])
     assert all(0.1 < float(r["peak_memory_gb"]) < 5 for r in rows)
     report = (tmp_path / "out" / "maps.md").read_text()
     assert f"| {SEQUENCE} | regor | 1/2 | 1 / 0 |" in report
+    assert "median seconds per stage" in report
     assert (tmp_path / "out" / "maps.png").stat().st_size > 1000
 
 
