@@ -40,6 +40,10 @@ class CellTable:
         self.features = features    # (M, D) their features
         self.bounds = bounds        # (cells + 1,) cell c holds rows bounds[c]:bounds[c + 1]
 
+    @property
+    def cells(self) -> int:
+        return len(self.bounds) - 1
+
     @classmethod
     def of(cls, ivf, features: np.ndarray) -> "CellTable":
         """The layout of a filled FAISS inverted file (its cells, in its order)."""
@@ -53,21 +57,20 @@ class CellTable:
 
     def subset(self, member: np.ndarray) -> "CellTable":
         """The table of the rows whose ``member`` flag is set, in the same cells."""
-        cells = len(self.bounds) - 1
-        cell_of_row = np.repeat(np.arange(cells), np.diff(self.bounds))
+        cell_of_row = np.repeat(np.arange(self.cells), np.diff(self.bounds))
         keep = member[self.ids]
         return CellTable(self.quantizer, self.ids[keep], self.features[keep],
-                         np.searchsorted(cell_of_row[keep], np.arange(cells + 1)))
+                         np.searchsorted(cell_of_row[keep], np.arange(self.cells + 1)))
 
     def nearest(self, queries: np.ndarray, probes: int) -> Tuple[np.ndarray, np.ndarray]:
         """The most similar row among each query's probed cells: (ids (Q,), -1 when none;
         similarity (Q,), -inf when none). Ties go to the lower cell, then the lower id."""
-        probed = self.quantizer.search(queries, min(probes, len(self.bounds) - 1))[1]
+        probed = self.quantizer.search(queries, min(probes, self.cells))[1]
         query = np.repeat(np.arange(len(queries)), probed.shape[1])
         cell = probed.ravel()
         order = np.argsort(cell, kind="stable")
         query, cell = query[order], cell[order]
-        starts = np.searchsorted(cell, np.arange(len(self.bounds)))
+        starts = np.searchsorted(cell, np.arange(self.cells + 1))
         best = np.full(len(queries), -np.inf, dtype=np.float32)
         found = np.full(len(queries), -1, dtype=np.int64)
         for c in np.flatnonzero((np.diff(starts) > 0) & (np.diff(self.bounds) > 0)):

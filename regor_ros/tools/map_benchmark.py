@@ -112,12 +112,14 @@ def map_report(rows: List[dict], header: str) -> str:
         lines.append(f"| {sequence} | {method} | {correct}/{len(group)} | {right} / {len(published) - right} | "
                      f"{_median([r['seconds'] for r in group]):.2f} | "
                      f"{'-' if prep is None else f'{prep:.1f}'} | {group[0]['peak_memory_gb']:.2f} |")
-    timed = [(key, group) for key, group in groups.items() if all(f"seconds_{st}" in r for r in group for st in STAGES)]
+    timed = [(sequence, group) for (sequence, _), group in groups.items()
+             if all(f"seconds_{stage}" in r for r in group for stage in STAGES)]
     if timed:
         lines += ["", "Regor's median seconds per stage (the scan's FPFH is the rest of the time per query):", "",
                   "| sequence | " + " | ".join(STAGES) + " |", "|---|" + "---|" * len(STAGES)]
-        lines += [f"| {sequence} | " + " | ".join(f"{_median([r[f'seconds_{st}'] for r in group]):.3f}" for st in STAGES)
-                  + " |" for (sequence, _), group in timed]
+        for sequence, group in timed:
+            medians = (_median([r[f"seconds_{stage}"] for r in group]) for stage in STAGES)
+            lines.append(f"| {sequence} | " + " | ".join(f"{m:.3f}" for m in medians) + " |")
     lines += ["", "Per query (error against the truth; `published` = passed the method's own gate):", "",
               "| sequence | query | method | correct | published | RE deg | TE m | s | reason |",
               "|---|---|---|---|---|---|---|---|---|"]
