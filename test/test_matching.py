@@ -3,8 +3,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from regor_ros.core.feature_index import FeatureIndex
-from regor_ros.core.matching import (feature_distance, generalized_mutual_matches, is_mutual,
-                                     match_features, mutual_first, mutual_matches)
+from regor_ros.core.matching import (feature_distance, generalized_mutual_matches, match_features,
+                                     mutual_matches)
 
 
 def unit_rows(rng, n):
@@ -64,35 +64,29 @@ def test_mutual_flags_and_similarities_agree_with_the_full_matrix():
     m = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64))
     sim = fs @ ft.T
     np.testing.assert_allclose(m.similarity, sim.max(axis=1), rtol=1e-6)
-    rows = np.arange(0, 5000, 7)
-    expected = sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000)
-    np.testing.assert_array_equal(is_mutual(cloud(fs), cloud(ft), m, rows), expected[rows])
-    assert 0 < expected.sum() <= 300
+    np.testing.assert_array_equal(m.mutual, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))
+    assert 0 < m.mutual.sum() <= 300
+    unflagged = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64),
+                               mutual=False)
+    assert unflagged.mutual is None  # the second search is skipped, the matches are the same
+    np.testing.assert_array_equal(unflagged.target_index, m.target_index)
 
 
-def test_mutual_first_chooses_as_flagging_every_match_would():
-    """Flags are asked in similarity order only until enough mutual matches are found: the choice
-    must be that of sorting all matches by (mutual, similarity), whether it stops early or not."""
-    rng = np.random.default_rng(4)
-    fs, ft = unit_rows(rng, 3000), unit_rows(rng, 2000)
-    source, target = cloud(fs), cloud(ft)
-    m = match_features(source, target, candidates=5, candidate_rows=np.zeros(0, np.int64))
-    sim = fs @ ft.T
-    mutual = sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(3000)
-    ranked = np.lexsort((-m.similarity, ~mutual))
-    for count in (mutual.sum() // 3, mutual.sum() + 400):  # stops early / flags every match
-        np.testing.assert_array_equal(mutual_first(source, target, m, count), np.sort(ranked[:count]))
-
-
-def test_consensus_subset_random_and_all():
+def test_best_subset_takes_mutual_matches_first():
     from regor_ros.core.config import InitialConfig
     from regor_ros.core.initial import consensus_subset
     from regor_ros.core.matching import FeatureMatches
     n = 1000
-    matches = FeatureMatches(np.arange(n), np.linspace(0, 1, n).astype(np.float32), np.arange(0),
-                             np.zeros((0, 1), int), np.zeros((0, 1)))
+    mutual = np.zeros(n, bool)
+    mutual[::10] = True
+    similarity = np.linspace(0, 1, n).astype(np.float32)
+    matches = FeatureMatches(np.arange(n), similarity, mutual, np.arange(0), np.zeros((0, 1), int),
+                             np.zeros((0, 1)))
+    best = consensus_subset(matches, InitialConfig(max_correspondences=300, subset="best"), None)
+    assert set(np.flatnonzero(mutual)) <= set(best)
+    assert similarity[np.setdiff1d(best, np.flatnonzero(mutual))].min() > 0.7
     rng = np.random.default_rng(0)
-    random = consensus_subset(matches, None, None, InitialConfig(max_correspondences=300), rng)
+    random = consensus_subset(matches, InitialConfig(max_correspondences=300), rng)
     assert len(random) == 300 and len(np.unique(random)) == 300
-    everything = consensus_subset(matches, None, None, InitialConfig(max_correspondences=0), rng)
+    everything = consensus_subset(matches, InitialConfig(max_correspondences=0), rng)
     np.testing.assert_array_equal(everything, np.arange(n))

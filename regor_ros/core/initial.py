@@ -18,7 +18,7 @@ from .config import InitialConfig
 from .consistency import compatibility, leading_eigenvector, second_order, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
-from .matching import FeatureMatches, mutual_first
+from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
@@ -132,8 +132,7 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
     return int(agree.sum(axis=1).max()), vp, vq
 
 
-def consensus_subset(matches: FeatureMatches, source: PreparedCloud, target: PreparedCloud,
-                     cfg: InitialConfig, rng: np.random.Generator) -> np.ndarray:
+def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator) -> np.ndarray:
     """The correspondences the quadratic consensus steps run on: all of them when they fit in
     max_correspondences, else a random subset (the authors' choice), or with subset="best" the
     mutual nearest neighbours first and then the most similar matches (deviation)."""
@@ -142,7 +141,8 @@ def consensus_subset(matches: FeatureMatches, source: PreparedCloud, target: Pre
         return np.arange(n_all)
     if cfg.subset == "random":
         return np.sort(rng.choice(n_all, cfg.max_correspondences, replace=False))
-    return mutual_first(source, target, matches, cfg.max_correspondences)
+    order = np.lexsort((-matches.similarity, ~matches.mutual))
+    return np.sort(order[:cfg.max_correspondences])
 
 
 def _fittest(poses: list, fitnesses: list, plausible) -> np.ndarray:
@@ -162,7 +162,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
 
     With ``plausible`` (a pose -> bool check, e.g. free space), FS-TCD's winner is the fittest
     plausible hypothesis, or the fittest of all when none is plausible."""
-    subset = consensus_subset(matches, source, target, cfg, rng)
+    subset = consensus_subset(matches, cfg, rng)
     sub_src, sub_tgt = src[subset], tgt[subset]
 
     hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg)

@@ -6,6 +6,7 @@ product; everything here ranks by similarity (dot product) and never takes the s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -18,6 +19,7 @@ class FeatureMatches:
 
     target_index: np.ndarray        # (N,) nearest target keypoint in feature space
     similarity: np.ndarray          # (N,) its feature similarity (dot product)
+    mutual: Optional[np.ndarray]    # (N,) the source keypoint is also its target's nearest (if asked)
     candidate_rows: np.ndarray      # (R,) source keypoints that have candidate sets
     candidates: np.ndarray          # (R, K) their K most similar target keypoints (FS-TCD's set)
     candidate_distance: np.ndarray  # (R, K) and feature distances
@@ -29,11 +31,12 @@ def feature_distance(similarity: np.ndarray) -> np.ndarray:
 
 
 def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int,
-                   candidate_rows: np.ndarray) -> FeatureMatches:
+                   candidate_rows: np.ndarray, mutual: bool = True) -> FeatureMatches:
     """Nearest target feature per source feature (no mutual check, as the authors run it) and the
     ``candidates`` most similar targets of the source features in ``candidate_rows``, most
     similar first. Only the target's index is searched, so a map costs an index query per
-    source keypoint."""
+    source keypoint. With ``mutual``, the flags ask the source's index about the targets that
+    were hit (a second search: only for callers that use them)."""
     nearest, best_sim = target.index.search(source.features, 1)
     nearest, best_sim = np.maximum(nearest[:, 0], 0), best_sim[:, 0]
     cand, cand_sim = target.index.search(source.features[candidate_rows], candidates)
@@ -41,34 +44,12 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
     if missing.any():
         cand = np.where(missing, cand[:, :1], cand)
         cand_sim = np.where(missing, cand_sim[:, :1], cand_sim)
-    return FeatureMatches(nearest, best_sim, candidate_rows, cand, feature_distance(cand_sim))
-
-
-def is_mutual(source: PreparedCloud, target: PreparedCloud, matches: FeatureMatches,
-              rows: np.ndarray) -> np.ndarray:
-    """Whether each source keypoint in ``rows`` is also the nearest source feature of its nearest
-    target: a search of the source's index for every distinct target hit."""
-    hit, slot = np.unique(matches.target_index[rows], return_inverse=True)
-    back, _ = source.index.search(target.features[hit], 1)
-    return back[slot.ravel(), 0] == rows
-
-
-def mutual_first(source: PreparedCloud, target: PreparedCloud, matches: FeatureMatches,
-                 count: int) -> np.ndarray:
-    """The ``count`` matches that are mutual nearest neighbours, most similar first, topped up with
-    the most similar others; sorted indices. Mutual flags cost a back search, so they are asked in
-    order of similarity, ``count`` matches at a time, only until ``count`` mutual ones are found:
-    the choice of flagging every match, up to exact ties (duplicate features), which the search
-    breaks differently in another batch."""
-    order = np.argsort(-matches.similarity, kind="stable")
-    flags = np.zeros(len(order), dtype=bool)
-    checked = 0
-    while checked < len(order) and np.count_nonzero(flags) < count:
-        block = order[checked:checked + count]
-        flags[checked:checked + len(block)] = is_mutual(source, target, matches, block)
-        checked += len(block)
-    ranked = np.concatenate([order[flags], order[:checked][~flags[:checked]], order[checked:]])
-    return np.sort(ranked[:count])
+    flags = None
+    if mutual:
+        hit, slot = np.unique(nearest, return_inverse=True)
+        back, _ = source.index.search(target.features[hit], 1)
+        flags = back[slot, 0] == np.arange(len(nearest))
+    return FeatureMatches(nearest, best_sim, flags, candidate_rows, cand, feature_distance(cand_sim))
 
 
 def _top_mask(similarity: np.ndarray, k: int, axis: int) -> np.ndarray:

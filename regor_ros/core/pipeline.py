@@ -201,7 +201,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
     candidate_rows = np.arange(len(src_cloud))
     if fs_tcd_points and len(src_cloud) > fs_tcd_points:
         candidate_rows = np.sort(rng.choice(len(src_cloud), fs_tcd_points, replace=False))
-    matches = match_features(src_cloud, tgt_cloud, config.initial.candidates, candidate_rows)
+    matches = match_features(src_cloud, tgt_cloud, config.initial.candidates, candidate_rows,
+                             mutual=config.initial.subset == "best")
     init_src = src_cloud.points
     init_tgt = tgt_cloud.points[matches.target_index]
     lap("matching")

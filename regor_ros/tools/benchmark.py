@@ -89,7 +89,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
     target = prepare_cloud(tgt, config, "target", viewpoint=pair.tgt_viewpoint)
     feature_seconds = time.perf_counter() - t0
     threshold = INLIER_THRESHOLDS[kind]
-    nearest = match_features(source, target, 1, np.zeros(0, np.int64)).target_index
+    nearest = match_features(source, target, 1, np.zeros(0, np.int64), mutual=False).target_index
     initial_correct = 0 if T_gt is None else int(correct_mask(source.points, target.points[nearest],
                                                                 T_gt, threshold).sum())
     rows = []
