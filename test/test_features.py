@@ -28,3 +28,20 @@ def test_prepared_cloud_has_unit_features_and_normals(kitchen_pair):
     np.testing.assert_allclose(np.linalg.norm(cloud.features, axis=1), 1.0, atol=1e-4)
     np.testing.assert_allclose(np.linalg.norm(cloud.normals, axis=1), 1.0, atol=1e-6)
     assert cloud.input_size == len(kitchen_pair[0])
+
+
+def test_features_are_open3d_fpfh_up_to_bin_edges():
+    """The tensor FPFH (all cores) must stay the FPFH the pipeline was measured with: the legacy
+    histograms, where at most a few neighbours at a bin edge fall in the next bin."""
+    import open3d as o3d
+    src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
+    cfg = RegorConfig.preset("outdoor").replace({"remove_ground": False})
+    cloud = prepare_cloud(src, cfg)
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
+    down.normals = o3d.utility.Vector3dVector(cloud.normals)
+    legacy = np.asarray(o3d.pipelines.registration.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(
+        radius=cfg.features.fpfh_radius, max_nn=cfg.features.fpfh_max_nn)).data, dtype=np.float32).T
+    legacy /= np.linalg.norm(legacy, axis=1, keepdims=True) + 1e-6
+    differs = np.abs(cloud.features - legacy).max(axis=1) > 1e-5
+    assert differs.mean() < 0.01
+    np.testing.assert_allclose(cloud.features[~differs], legacy[~differs], atol=1e-5)
