@@ -45,3 +45,14 @@ def test_features_are_open3d_fpfh_up_to_bin_edges():
     differs = np.abs(cloud.features - legacy).max(axis=1) > 1e-5
     assert differs.mean() < 0.01
     np.testing.assert_allclose(cloud.features[~differs], legacy[~differs], atol=1e-5)
+
+
+def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
+    """A map's FPFH is computed in slabs to bound memory; each slab carries the points within two
+    radii, so every keypoint gets the histogram it gets in one call."""
+    from regor_ros.core.features import fpfh
+    src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
+    cloud = prepare_cloud(src, RegorConfig.preset("outdoor"))
+    whole = fpfh(cloud.points, cloud.normals, 1.5, 100, chunk=len(cloud))
+    slabs = fpfh(cloud.points, cloud.normals, 1.5, 100, chunk=len(cloud) // 7)
+    np.testing.assert_allclose(slabs, whole, atol=1e-4)
