@@ -52,7 +52,8 @@ def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
     radii, so every keypoint gets the histogram it gets in one call."""
     from regor_ros.core.features import fpfh
     src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
+    cfg = RegorConfig.preset("outdoor").features
     cloud = prepare_cloud(src, RegorConfig.preset("outdoor"))
-    whole = fpfh(cloud.points, cloud.normals, 1.5, 100, chunk=len(cloud))
-    slabs = fpfh(cloud.points, cloud.normals, 1.5, 100, chunk=len(cloud) // 7)
-    np.testing.assert_allclose(slabs, whole, atol=1e-4)
+    whole = fpfh(cloud.points, cloud.normals, cfg.fpfh_radius, cfg.fpfh_max_nn, chunk=len(cloud))
+    slabs = fpfh(cloud.points, cloud.normals, cfg.fpfh_radius, cfg.fpfh_max_nn, chunk=len(cloud) // 7)
+    np.testing.assert_array_equal(slabs, whole)

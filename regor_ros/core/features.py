@@ -156,7 +156,6 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> 
     features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     image = None if vp is None else RangeImage.build(points, vp, config.range_image_resolution)
-    features = np.ascontiguousarray(features)
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                          config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
