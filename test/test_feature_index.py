@@ -77,3 +77,26 @@ def test_the_by_cell_nearest_scan_finds_what_faiss_finds_in_the_same_cells():
         np.testing.assert_allclose(similarity[:, 0], np.einsum("ij,ij->i", queries, data[ids[found[:, 0]]]),
                                    rtol=1e-5)
         assert np.mean(ids[found[:, 0]] == faiss_found[:, 0]) > 0.99  # random data: ties are rare
+
+
+def test_nearest_and_candidates_reuses_a_unique_best_candidate_only_in_an_inverted_file():
+    """Against a scan (exact) both searches run as before; against an inverted file a query with
+    candidates takes its unique best as its nearest row, which is at least as similar as what the
+    nearest-neighbour scan (fewer cells) finds, and the other queries get that scan's answer."""
+    rng = np.random.default_rng(3)
+    data, queries = unit_rows(rng, 30000), unit_rows(rng, 3000)
+    rows = np.sort(rng.choice(3000, 500, replace=False))
+    for index in (FeatureIndex(data, exact_limit=30000, probes=32, nearest_probes=8),
+                  FeatureIndex(data, exact_limit=1000, probes=32, nearest_probes=8)):
+        nearest, similarity, candidates, candidate_similarity = index.nearest_and_candidates(queries, rows, 10)
+        scanned, scanned_similarity = (a[:, 0] for a in index.search(queries, 1))
+        np.testing.assert_array_equal((candidates, candidate_similarity), index.search(queries[rows], 10))
+        others = np.setdiff1d(np.arange(3000), rows)
+        np.testing.assert_array_equal(nearest[others], scanned[others])
+        if index.exact:
+            np.testing.assert_array_equal(nearest, scanned)
+            np.testing.assert_array_equal(similarity, scanned_similarity)
+        else:
+            np.testing.assert_array_equal(nearest[rows], candidates[:, 0])   # random data: no ties
+            assert (similarity[rows] >= scanned_similarity[rows] - 1e-6).all()          # float rounding
+            assert (similarity[rows] > scanned_similarity[rows]).any()        # more cells found better

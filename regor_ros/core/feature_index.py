@@ -20,6 +20,7 @@ Features are unit vectors: inner product ranks them as the feature distance does
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Optional, Tuple
 
 import faiss
@@ -29,6 +30,21 @@ CELLS_PER_SQRT = 4        # k-means cells = 4 sqrt(n), FAISS's rule of thumb for
 MIN_ROWS_PER_CELL = 40    # k-means needs about 40 training rows per cell
 TRAINING_PER_CELL = 64    # training sample per cell (all rows if fewer)
 KMEANS_SEED = 1234
+
+
+@contextmanager
+def _reservoir_top_k():
+    """FAISS's flat search keeps each query's top k in a heap for k < 100 and in a reservoir
+    (collect, then partition) from 100 on. For the probed cells of thousands of queries (k = 64
+    of a few thousand cells) the reservoir gives the same cells in the same order in 0.09 s
+    instead of 0.12 s (506 k-keypoint map, 14.5 k queries). FAISS's switch is process-wide,
+    so it is restored on the way out."""
+    before = faiss.cvar.distance_compute_min_k_reservoir
+    faiss.cvar.distance_compute_min_k_reservoir = 1
+    try:
+        yield
+    finally:
+        faiss.cvar.distance_compute_min_k_reservoir = before
 
 
 class CellTable:
@@ -65,7 +81,8 @@ class CellTable:
     def nearest(self, queries: np.ndarray, probes: int) -> Tuple[np.ndarray, np.ndarray]:
         """The most similar row among each query's probed cells: (ids (Q,), -1 when none;
         similarity (Q,), -inf when none). Ties go to the lower cell, then the lower id."""
-        probed = self.quantizer.search(queries, min(probes, self.cells))[1]
+        with _reservoir_top_k():
+            probed = self.quantizer.search(queries, min(probes, self.cells))[1]
         cell = probed.ravel()
         # group the (query, cell) pairs by cell; 16-bit keys sort by radix, five times faster
         order = np.argsort(cell.astype(np.uint16) if self.cells <= 1 << 16 else cell, kind="stable")
@@ -132,6 +149,25 @@ class FeatureIndex:
         view._selector = faiss.IDSelectorBitmap(self.size, faiss.swig_ptr(view._bitmap))
         view._cells = self._cells.subset(member)
         return view
+
+    def nearest_and_candidates(self, queries: np.ndarray, rows: np.ndarray, k: int):
+        """Every query's most similar row, and the k most similar of the queries in ``rows``:
+        (nearest (Q,), its similarity (Q,), candidates (R, k), their similarities (R, k)), as
+        ``search`` gives them. In an inverted file, a query of ``rows`` whose candidates have a
+        unique best needs no second search: that is its nearest row, found in more cells than the
+        nearest-neighbour scan probes (a sixth of a scan's queries on the outdoor preset)."""
+        queries = np.ascontiguousarray(queries, dtype=np.float32)
+        candidates, similarity = self.search(queries[rows], k)
+        rest = np.arange(len(queries))
+        nearest = np.full(len(queries), -1, dtype=np.int64)
+        best = np.full(len(queries), -np.inf, dtype=np.float32)
+        if not self.exact and candidates.shape[1] > 1:
+            unique = similarity[:, 0] > similarity[:, 1]
+            nearest[rows[unique]], best[rows[unique]] = candidates[unique, 0], similarity[unique, 0]
+            rest = np.setdiff1d(rest, rows[unique], assume_unique=True)
+        found, found_similarity = self.search(queries[rest], 1)
+        nearest[rest], best[rest] = found[:, 0], found_similarity[:, 0]
+        return nearest, best, candidates, similarity
 
     def search(self, queries: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
         """The k most similar rows of each query, most similar first: (index (Q, k) int64,

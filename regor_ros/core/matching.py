@@ -37,9 +37,9 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
     similar first. Only the target's index is searched, so a map costs an index query per
     source keypoint. With ``mutual``, the flags ask the source's index about the targets that
     were hit (a second search: only for callers that use them)."""
-    nearest, best_sim = target.index.search(source.features, 1)
-    nearest, best_sim = np.maximum(nearest[:, 0], 0), best_sim[:, 0]
-    cand, cand_sim = target.index.search(source.features[candidate_rows], candidates)
+    nearest, best_sim, cand, cand_sim = target.index.nearest_and_candidates(
+        source.features, candidate_rows, candidates)
+    nearest = np.maximum(nearest, 0)
     missing = cand < 0  # an inverted file found fewer than K: repeat the row's best instead
     if missing.any():
         cand = np.where(missing, cand[:, :1], cand)
