@@ -32,14 +32,18 @@ def test_mismatched_mode_counts_accepted_poses_across_places(tmp_path, capsys):
     assert main([str(folder), "--mismatched", "--rotate", "2", "--methods", "regor,kiss-matcher",
                  "--out", str(tmp_path / "out")]) == 0
     rows = list(csv.DictReader(open(tmp_path / "out" / "mismatched.csv")))
-    assert {r["pair"] for r in rows} == {"3dmatch_redkitchen_5_6_ds -> 3dmatch_hotel_umd_8_15_ds",
-                                         "3dmatch_hotel_umd_8_15_ds -> 3dmatch_redkitchen_5_6_ds"}
-    assert len(rows) == 4 and not any(r["success"] == "True" for r in rows)
+    # each source against the other place's target, and each target against its source
+    assert {r["pair"] for r in rows} == {
+        "3dmatch_redkitchen_5_6_ds -> 3dmatch_hotel_umd_8_15_ds",
+        "3dmatch_hotel_umd_8_15_ds -> 3dmatch_redkitchen_5_6_ds",
+        "3dmatch_redkitchen_5_6_ds (target) -> 3dmatch_hotel_umd_8_15_ds (source)",
+        "3dmatch_hotel_umd_8_15_ds (target) -> 3dmatch_redkitchen_5_6_ds (source)"}
+    assert len(rows) == 8 and not any(r["success"] == "True" for r in rows)
     # every accepted pose counts as published wrong
     report = (tmp_path / "out" / "mismatched.md").read_text()
     for method in ("regor", "kiss-matcher"):
         accepted = sum(r["accepted"] == "True" for r in rows if r["method"] == method)
-        assert f"| all | {method} | 0.0 % | 0/2 |" in report
+        assert f"| all | {method} | 0.0 % | 0/4 |" in report
         assert report.split(f"| all | {method} |")[1].split("\n")[0].endswith(f"| 0 / {accepted} |")
     # Regor's stages are timed per run and their medians reported; the peer has no stages
     regor = [r for r in rows if r["method"] == "regor"]

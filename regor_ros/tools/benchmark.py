@@ -134,6 +134,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
 def place(name: str) -> str:
     """Where a pair was scanned: its name without fragment or scan numbers (``hotel_umd3_15_16``
     and ``hotel_umd_8_15`` are both maryland_hotel3)."""
+    name = name.split(" (")[0]  # a cross-place run's role label: "(target)", "(source)"
     parts = [part.rstrip("0123456789") for part in name.split("_")
              if not part.isdigit() and part not in ("ds", "to")]
     return "_".join(part for part in parts if part)
@@ -145,8 +146,18 @@ def same_place(a: str, b: str) -> bool:
 
 
 def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
-    """Each distinct source against one target of every other place of its kind (a different one
-    for each motion seed, round robin); there is no true pose, so any accepted pose is wrong."""
+    """Each distinct source against one target of every other place of its kind, and each
+    distinct target, as the source, against one source of every other place (a different one for
+    each motion seed, round robin). There is no true pose, so any accepted pose is wrong. Both
+    directions, because a wrong pose can pass the gate one way round and not the other."""
+    swapped = [Pair(p.index, p.name, p.kind, p.tgt, p.src, None, p.tgt_viewpoint, p.src_viewpoint)
+               for p in pairs]
+    return _crossed(pairs, seed, "", "") + _crossed(swapped, seed, " (target)", " (source)")
+
+
+def _crossed(pairs: List[Pair], seed: Optional[int], source_role: str, target_role: str) -> List[Pair]:
+    """Each distinct source cloud against one target cloud of every other place; the role labels
+    name which cloud of each pair was used when it is not the usual one."""
     sources, targets = {}, defaultdict(dict)
     for p in pairs:
         sources.setdefault(p.src.tobytes().__hash__(), p)
@@ -158,8 +169,8 @@ def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
                 continue
             group = list(group.values())
             b = group[((seed or 0) + a.index) % len(group)]
-            crossed.append(Pair(a.index, f"{a.name} -> {b.name}", a.kind, a.src, b.tgt, None,
-                                a.src_viewpoint, b.tgt_viewpoint))
+            crossed.append(Pair(a.index, f"{a.name}{source_role} -> {b.name}{target_role}", a.kind,
+                                a.src, b.tgt, None, a.src_viewpoint, b.tgt_viewpoint))
     return crossed
 
 
@@ -355,7 +366,7 @@ def main(argv=None) -> int:
     command = _command(argv)
     header = (f"# regor_ros benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
               f"Command: `{command}`  \nData: {', '.join(f'`{d}`' for d in args.data)} ({len(pairs)} pairs"
-              f"{'; cross-place: each source against one target of every other place per seed, no true pose' if args.mismatched else ''}), rotation seeds: "
+              f"{'; cross-place: each source against one target of every other place per seed, and each target against one source, no true pose' if args.mismatched else ''}), rotation seeds: "
               f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
               "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
               "with FPFH included (registration alone in brackets); `published correct / WRONG`: poses that "
