@@ -5,7 +5,8 @@ from regor_ros.tools.calibrate_gate import Sample, fit, load_samples, main, scor
 
 
 def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
-    return Sample(kind, (place,), correct, True, features, violation, opposite, rivals)
+    """A run checked from both sides (``violation`` on each), or from neither (None)."""
+    return Sample(kind, (place,), correct, True, features, (violation, violation), opposite, rivals)
 
 
 def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
@@ -13,10 +14,23 @@ def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
                sample("b", False, 80, 0.40), sample("b", False, 20, 0.01),   # caught by each check
                sample("c", False, 120, 0.0, rivals=((0.95, 0.9, 0.0, 0.0, 180.0),)),
                sample("d", False, 120, 0.0, opposite=0.9)]                      # back to back                 # a symmetric room
-    violation, features, max_ambiguity = fit(samples, "indoor")
+    thresholds = fit(samples, "indoor")
+    violation, features, max_ambiguity, features_partial = thresholds
     assert 0.05 <= violation < 0.40 and 20 < features <= 40 and max_ambiguity <= 0.95
-    correct, published, wrong, n = score(samples, violation, features, max_ambiguity)
-    assert (correct, published, wrong, n) == (2, 2, 0, 6)
+    assert score(samples, thresholds) == (2, 2, 0, 6)
+    # without viewpoints only features tell: the wrong runs at 80 and 120 must not pass then
+    assert features_partial > 120
+    assert score([s.blinded(keep_source=False) for s in samples], thresholds)[2] == 0
+
+
+def test_a_run_without_a_full_visibility_check_is_judged_by_the_partial_threshold():
+    samples = [sample("a", True, 40, 0.02), sample("b", False, 30, 0.30),
+               sample("c", False, 60, None), sample("d", True, 70, None)]
+    thresholds = fit(samples, "indoor")
+    assert thresholds[1] <= 40 and 60 < thresholds[3] <= 70
+    assert score(samples, thresholds) == (2, 2, 0, 4)
+    one_sided = sample("a", True, 40, 0.02).blinded(keep_source=True)
+    assert one_sided.violations == (0.02, None) and not one_sided.both_sides
 
 
 def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_path, capsys):

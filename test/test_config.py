@@ -37,6 +37,14 @@ def test_k2_not_above_k1():
         RegorConfig().replace({"initial.k2": 30})
 
 
+def test_a_partial_visibility_check_needs_at_least_the_full_feature_support():
+    with pytest.raises(ConfigError, match="min_feature_inliers_partial"):
+        RegorConfig().replace({"min_feature_inliers_partial": 10})
+    for name in ("indoor", "outdoor", "object"):
+        gate = RegorConfig.preset(name).acceptance
+        assert gate.min_feature_inliers_partial > gate.min_feature_inliers
+
+
 def test_replace_accepts_dotted_and_unique_short_names_and_strings():
     cfg = RegorConfig().replace({"features.voxel_size": "0.04", "k1": "25",
                                  "dedupe_hypotheses": "false", "stage_neighbors": "50,10"})

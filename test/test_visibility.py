@@ -146,3 +146,23 @@ def test_rooms_of_two_places_put_back_to_back_are_rejected_by_the_opposite_sides
     checked = register(hotel, study, cfg.replace({"min_feature_inliers": 0}), source_viewpoint=sensor)
     assert not checked.accepted and "opposite sides" in checked.reason
     assert checked.visibility.opposite_sides > 0.9
+
+
+def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
+    """A home fragment on a kitchen fragment (benchmark motion 6): 71 feature matches agree, and
+    only the kitchen sensor's free space shows it wrong. Without the kitchen's viewpoint (as for a
+    map) the check sees one side, and the partial feature threshold has to reject it."""
+    require_shared_data("this cross-place pair")
+    from regor_ros.tools.benchmark import load_pairs
+    pairs = {p.name: p for p in load_pairs(DATA / "pairs", None)}
+    home, kitchen = pairs["3dmatch_home_at_38_41_ds"].moved(6), pairs["3dmatch_redkitchen_21_34_ds"]
+    cfg = INDOOR.replace({"seed": 6})
+    both = register(home.src, kitchen.tgt, cfg, source_viewpoint=home.src_viewpoint)
+    assert not both.accepted and "lies in space" in both.reason
+    assert both.num_feature_inliers >= cfg.acceptance.min_feature_inliers
+    as_map = prepare_cloud(kitchen.tgt, cfg, viewpoint=None)
+    one_sided = register(home.src, as_map, cfg, source_viewpoint=home.src_viewpoint)
+    assert not one_sided.visibility.both_sides and one_sided.summary()["visibility"]["both_sides"] is False
+    assert not one_sided.accepted and "min_feature_inliers_partial" in one_sided.reason
+    lenient = cfg.replace({"min_feature_inliers_partial": cfg.acceptance.min_feature_inliers})
+    assert register(home.src, as_map, lenient, source_viewpoint=home.src_viewpoint).accepted

@@ -111,6 +111,10 @@ class AcceptanceConfig:
     min_feature_inliers: int = _param(65, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms (calibrated: "
                                       "regor-calibrate-gate)", 0, 1000000)
+    min_feature_inliers_partial: int = _param(95, "the same when a viewpoint is unknown (a map, an accumulated "
+                                              "submap): visibility then checks one side or none, and wrong poses it "
+                                              "would reject get through on features alone (calibrated with the "
+                                              "viewpoints dropped: regor-calibrate-gate)", 0, 1000000)
     max_free_space_violation: float = _param(0.06, "largest fraction of one cloud's keypoints that may sit in space the other "
                                              "cloud's sensor saw through (free-space check; needs a viewpoint; 1 = off; "
                                              "calibrated: regor-calibrate-gate)", 0.0, 1.0)
@@ -165,7 +169,8 @@ class RegorConfig:
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=25, max_free_space_violation=0.04,
+                acceptance=AcceptanceConfig(min_feature_inliers=25, min_feature_inliers_partial=45,
+                                            max_free_space_violation=0.04,
                                             free_space_margin=0.9),
             )
         if name == "object":
@@ -229,6 +234,11 @@ class RegorConfig:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
         if self.features.normal_radius < self.features.voxel_size:
             raise ConfigError("features.normal_radius must be at least features.voxel_size")
+        gate = self.acceptance
+        if gate.min_feature_inliers_partial < gate.min_feature_inliers:
+            raise ConfigError(f"acceptance.min_feature_inliers_partial={gate.min_feature_inliers_partial} must "
+                              f"not be below acceptance.min_feature_inliers={gate.min_feature_inliers} (a check "
+                              "that sees less needs more feature support)")
         if self.features.fpfh_radius < self.features.voxel_size:
             raise ConfigError("features.fpfh_radius must be at least features.voxel_size")
         return self

@@ -2,7 +2,8 @@
 
 A wrong pose published with confidence is the worst outcome, so a pose is accepted only when
 - enough keypoints agree with it (inliers, fitness) and they fix all six degrees of freedom;
-- enough of the original feature matches agree with it (geometry alone aligns unrelated planes);
+- enough of the original feature matches agree with it (geometry alone aligns unrelated planes),
+  more when free space cannot be checked from both sides (a map has no viewpoint);
 - neither cloud puts surfaces into space the other sensor saw through, and the surface both saw
   was seen from the same side (visibility);
 - the pose turned by 180 degrees about an axis of symmetry of the overlap does not explain the
@@ -134,9 +135,14 @@ def _structural_failure(num_inliers: int, fitness: float, covariance: np.ndarray
 def _evidence_failure(num_feature_inliers: int, visibility: VisibilityFigures,
                       ambiguous: Optional[float], gate: AcceptanceConfig) -> str:
     """The checks that tell a right pose from a wrong one (thresholds calibrated on held-out places)."""
-    if num_feature_inliers < gate.min_feature_inliers:
+    if visibility.both_sides and num_feature_inliers < gate.min_feature_inliers:
         return (f"only {num_feature_inliers} feature matches agree with the pose "
                 f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
+    if not visibility.both_sides and num_feature_inliers < gate.min_feature_inliers_partial:
+        return (f"only {num_feature_inliers} feature matches agree with the pose "
+                f"(acceptance.min_feature_inliers_partial={gate.min_feature_inliers_partial}: "
+                "free space was not checked from both sides, a viewpoint is unknown or too little "
+                "of one cloud is in the other's view)")
     violation, opposite = visibility.worst, visibility.opposite_sides
     if violation is not None and violation > gate.max_free_space_violation:
         return (f"{100 * violation:.0f} % of one cloud lies in space the other sensor saw through "

@@ -114,6 +114,11 @@ class VisibilityFigures:
     target_seen: int = 0
 
     @property
+    def both_sides(self) -> bool:
+        """Each cloud was checked against the other sensor's free space."""
+        return self.source_violation is not None and self.target_violation is not None
+
+    @property
     def worst(self) -> Optional[float]:
         """The larger free-space fraction (None when neither side is known)."""
         known = [v for v in (self.source_violation, self.target_violation) if v is not None]
@@ -122,7 +127,7 @@ class VisibilityFigures:
     def as_dict(self):
         return {"source_violation": self.source_violation, "target_violation": self.target_violation,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
-                "target_seen": self.target_seen, "worst": self.worst}
+                "target_seen": self.target_seen, "worst": self.worst, "both_sides": self.both_sides}
 
 
 def _fraction(seen: int, inside: int, min_seen: int) -> Optional[float]:

@@ -2,24 +2,29 @@
 
 Reads the per-registration CSVs that ``regor-bench`` writes (pairs with ground truth, and the
 ``--mismatched`` cross-place runs, where every pose is wrong), with the gate's figures recorded
-whatever the verdict. Three thresholds are fitted for each kind (preset), since each kind is a
+whatever the verdict. Four thresholds are fitted for each kind (preset), since each kind is a
 different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``,
-``acceptance.max_ambiguity`` and ``acceptance.min_feature_inliers``. The structural checks
-(min_inliers, min_fitness, six constrained degrees of freedom) and the opposite-sides check
-(``acceptance.max_opposite_sides``, a majority rule) are not fitted.
+``acceptance.max_ambiguity`` and ``acceptance.min_feature_inliers`` on the runs whose free space
+was checked from both sides, then ``acceptance.min_feature_inliers_partial`` for a pose whose
+free space was not (a viewpoint unknown, as for a map): on the runs that had no full check, and
+on every run again with its viewpoints dropped, the target's or both (the run's figures without
+those sides; its rivals keep their recorded figures, which only makes the fit stricter). The
+structural checks (min_inliers, min_fitness, six constrained degrees of freedom) and the
+opposite-sides check (``acceptance.max_opposite_sides``, a majority rule) are not fitted.
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
 choices the thresholds in the middle of the tied ones (the widest margin on both sides). Leave one place (scene or sensor family) out:
 fit on every registration that does not involve it, report on those that do. The last line fits
-on everything: the values the presets use.
+on everything: the values the presets use. A second table reports the held-out runs again with
+the target's viewpoint dropped (a scan against a map) and with both dropped (map against map).
 """
 from __future__ import annotations
 
 import argparse
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import List, Optional
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -39,13 +44,31 @@ class Sample:
     correct: bool            # the pose is right (never for a cross-place run)
     structural: bool         # passes the checks that are not fitted
     feature_inliers: int
-    violation: Optional[float]  # worst free-space figure; None when no viewpoint is known
+    violations: tuple           # (source, target) free-space figures; None for a side not checked
     opposite: Optional[float] = None  # matched surface seen from opposite sides
     rivals: tuple = ()          # Rival fields of the symmetric rivals
 
     @property
+    def violation(self) -> Optional[float]:
+        known = [v for v in self.violations if v is not None]
+        return max(known) if known else None
+
+    @property
+    def both_sides(self) -> bool:
+        return all(v is not None for v in self.violations)
+
+    @property
     def max_opposite(self) -> float:
         return RegorConfig.preset(self.kind).acceptance.max_opposite_sides
+
+    def blinded(self, keep_source: bool) -> "Sample":
+        """This run as if the target's viewpoint (and the source's too, unless ``keep_source``)
+        were unknown: those free-space figures and the opposite-sides figure (it needs both) are
+        gone; with none left the rivals lose theirs as well."""
+        if keep_source:
+            return replace(self, violations=(self.violations[0], None), opposite=None)
+        rivals = tuple((a, b, None, None, e) for a, b, _, _, e in self.rivals)
+        return replace(self, violations=(None, None), opposite=None, rivals=rivals)
 
     def ambiguity(self, max_violation: float) -> Optional[float]:
         return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
@@ -70,53 +93,72 @@ def load_samples(paths: List[Path], method: str) -> List[Sample]:
             kind = row["kind"]
             gate = RegorConfig.preset(kind).acceptance
             names = row["pair"].split(" -> ")
-            sides = [v for v in (_number(row["free_space_source"]), _number(row["free_space_target"]))
-                     if v is not None]
             samples.append(Sample(
                 kind, tuple(place(n) for n in names), row["success"] == "True",
                 int(row["num_inliers"]) >= gate.min_inliers and float(row["fitness"]) >= gate.min_fitness
                 and "six degrees" not in row["reason"],
-                int(row["feature_inliers"]), max(sides) if sides else None,
+                int(row["feature_inliers"]), (_number(row["free_space_source"]), _number(row["free_space_target"])),
                 _number(row["opposite_sides"]), _rivals(row["rivals"])))
     return samples
 
 
-def published(samples: List[Sample], violation: float, min_features: int, max_ambiguity: float) -> np.ndarray:
+Thresholds = Tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
+
+
+def published(samples: List[Sample], thresholds: Thresholds) -> np.ndarray:
     """Which samples a gate with these thresholds publishes."""
+    violation, min_features, max_ambiguity, min_features_partial = thresholds
     shown = []
     for s in samples:
         ambiguous = s.ambiguity(violation)
-        shown.append(s.structural and s.feature_inliers >= min_features
+        shown.append(s.structural
+                     and s.feature_inliers >= (min_features if s.both_sides else min_features_partial)
                      and (s.violation is None or s.violation <= violation)
                      and (s.opposite is None or s.opposite <= s.max_opposite)
                      and (ambiguous is None or ambiguous < max_ambiguity))
     return np.array(shown, dtype=bool)
 
 
-def score(samples: List[Sample], violation: float, min_features: int, max_ambiguity: float):
+def score(samples: List[Sample], thresholds: Thresholds):
     """(correct registrations, published correct, published wrong, registrations)."""
-    shown = published(samples, violation, min_features, max_ambiguity)
+    shown = published(samples, thresholds)
     return (sum(s.correct for s in samples), int(sum(p and s.correct for p, s in zip(shown, samples))),
             int(sum(p and not s.correct for p, s in zip(shown, samples))), len(samples))
 
 
-def preset_thresholds(kind: str):
+def preset_thresholds(kind: str) -> Thresholds:
     gate = RegorConfig.preset(kind).acceptance
-    return gate.max_free_space_violation, gate.min_feature_inliers, gate.max_ambiguity
+    return (gate.max_free_space_violation, gate.min_feature_inliers, gate.max_ambiguity,
+            gate.min_feature_inliers_partial)
 
 
-def fit(samples: List[Sample], kind: str):
-    """(max_free_space_violation, min_feature_inliers, max_ambiguity) for samples of one kind, by
-    the module's rule; the preset's own values when no sample is wrong (nothing to fit on)."""
+def fit(samples: List[Sample], kind: str) -> Thresholds:
+    """The thresholds for samples of one kind, by the module's rule: the three of a full check on
+    the runs checked from both sides, then the partial feature threshold on the others and on
+    every run with its viewpoints dropped."""
+    full = [s for s in samples if s.both_sides]
+    violation, min_features, max_ambiguity = _fit_full(full, kind)
+    partial = ([s for s in samples if not s.both_sides]
+               + [s.blinded(keep_source) for s in full for keep_source in (True, False)])
+    if all(s.correct for s in partial):
+        return violation, min_features, max_ambiguity, max(min_features, preset_thresholds(kind)[3])
+    safe = [int(f) for f in FEATURE_GRID if f >= min_features
+            and score(partial, (violation, min_features, max_ambiguity, int(f)))[2] == 0]
+    return violation, min_features, max_ambiguity, safe[0] if safe else int(FEATURE_GRID[-1])
+
+
+def _fit_full(samples: List[Sample], kind: str):
+    """(max_free_space_violation, min_feature_inliers, max_ambiguity) for runs checked from both
+    sides; the preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
-        return preset_thresholds(kind)
+        return preset_thresholds(kind)[:3]
     best_count, candidates = -1, []
     for v in VIOLATION_GRID:
         for a in AMBIGUITY_GRID:
-            safe = [int(f) for f in FEATURE_GRID if score(samples, v, int(f), a)[2] == 0]
+            safe = [int(f) for f in FEATURE_GRID if score(samples, (v, int(f), a, int(f)))[2] == 0]
             if not safe:
                 continue
-            count = score(samples, v, safe[0], a)[1]   # the lowest safe feature threshold publishes most
+            count = score(samples, (v, safe[0], a, safe[0]))[1]   # the lowest safe feature threshold publishes most
             if count > best_count:
                 best_count, candidates = count, []
             if count == best_count:
@@ -138,30 +180,49 @@ def families(samples: List[Sample]) -> List[str]:
     return out
 
 
-def _row(name: str, thresholds, figures) -> str:
-    v, f, a = thresholds
-    return (f"| {name} | {v:.2f} | {f} | {'off' if a > 1 else f'{a:.2f}'} | "
+def _row(name: str, thresholds: Thresholds, figures) -> str:
+    v, f, a, p = thresholds
+    return (f"| {name} | {v:.2f} | {f} | {'off' if a > 1 else f'{a:.2f}'} | {p} | "
             + " | ".join(map(str, (figures[3], figures[0], figures[1], figures[2]))) + " |")
+
+
+def _blind_row(name: str, thresholds: Thresholds, held: List[Sample]) -> str:
+    """The held-out runs again without the target's viewpoint, and without either."""
+    map_scan = score([s.blinded(True) for s in held], thresholds)
+    map_map = score([s.blinded(False) for s in held], thresholds)
+    return (f"| {name} | {thresholds[3]} | {map_scan[3]} | {map_scan[0]} | {map_scan[1]} / {map_scan[2]} | "
+            f"{map_map[1]} / {map_map[2]} |")
 
 
 def report(samples: List[Sample]) -> str:
     lines = []
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
-        lines += [f"### {kind}", "", "| held out | max_free_space_violation | min_feature_inliers | "
-                  "max_ambiguity | held-out runs | correct | published correct | published WRONG |",
-                  "|---|---|---|---|---|---|---|---|"]
+        table = [f"### {kind}", "", "| held out | max_free_space_violation | min_feature_inliers | "
+                 "max_ambiguity | min_feature_inliers_partial | held-out runs | correct | published correct | "
+                 "published WRONG |", "|---|---|---|---|---|---|---|---|---|"]
+        blind = ["", f"{kind}, the same held-out runs with viewpoints dropped (the partial threshold applies):", "",
+                 "| held out | min_feature_inliers_partial | runs | correct | target's dropped (scan to map): "
+                 "published correct / WRONG | both dropped (map to map): published correct / WRONG |",
+                 "|---|---|---|---|---|---|"]
         totals = np.zeros(4, dtype=int)
+        blind_totals = np.zeros((2, 4), dtype=int)
         for family in families(group):
             held = [s for s in group if any(same_place(p, family) for p in s.places)]
             rest = [s for s in group if not any(same_place(p, family) for p in s.places)]
             thresholds = fit(rest, kind)
-            figures = score(held, *thresholds)
+            figures = score(held, thresholds)
             totals += figures
-            lines.append(_row(family, thresholds, figures))
-        lines.append(f"| **sum over held-out places** | | | | {totals[3]} | {totals[0]} | {totals[1]} | {totals[2]} |")
+            table.append(_row(family, thresholds, figures))
+            blind.append(_blind_row(family, thresholds, held))
+            blind_totals += [score([s.blinded(k) for s in held], thresholds) for k in (True, False)]
+        table.append(f"| **sum over held-out places** | | | | | {totals[3]} | {totals[0]} | {totals[1]} | {totals[2]} |")
+        blind.append(f"| **sum over held-out places** | | {blind_totals[0][3]} | {blind_totals[0][0]} | "
+                     f"{blind_totals[0][1]} / {blind_totals[0][2]} | {blind_totals[1][1]} / {blind_totals[1][2]} |")
         thresholds = fit(group, kind)
-        lines += [_row("**fitted on all of it (preset)**", thresholds, score(group, *thresholds)), ""]
+        table.append(_row("**fitted on all of it (preset)**", thresholds, score(group, thresholds)))
+        blind.append(_blind_row("**fitted on all of it (preset)**", thresholds, group))
+        lines += table + blind + [""]
     return "\n".join(lines)
 
 
