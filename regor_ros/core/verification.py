@@ -135,14 +135,15 @@ def _structural_failure(num_inliers: int, fitness: float, covariance: np.ndarray
 def _evidence_failure(num_feature_inliers: int, visibility: VisibilityFigures,
                       ambiguous: Optional[float], gate: AcceptanceConfig) -> str:
     """The checks that tell a right pose from a wrong one (thresholds calibrated on held-out places)."""
-    if visibility.both_sides and num_feature_inliers < gate.min_feature_inliers:
+    if visibility.both_sides:
+        name, needed, why = "min_feature_inliers", gate.min_feature_inliers, ""
+    else:  # visibility cannot catch what it would have: features must stand on their own
+        name, needed, why = ("min_feature_inliers_partial", gate.min_feature_inliers_partial,
+                             ": free space was not checked from both sides, a viewpoint is unknown "
+                             "or too little of one cloud is in the other's view")
+    if num_feature_inliers < needed:
         return (f"only {num_feature_inliers} feature matches agree with the pose "
-                f"(acceptance.min_feature_inliers={gate.min_feature_inliers})")
-    if not visibility.both_sides and num_feature_inliers < gate.min_feature_inliers_partial:
-        return (f"only {num_feature_inliers} feature matches agree with the pose "
-                f"(acceptance.min_feature_inliers_partial={gate.min_feature_inliers_partial}: "
-                "free space was not checked from both sides, a viewpoint is unknown or too little "
-                "of one cloud is in the other's view)")
+                f"(acceptance.{name}={needed}{why})")
     violation, opposite = visibility.worst, visibility.opposite_sides
     if violation is not None and violation > gate.max_free_space_violation:
         return (f"{100 * violation:.0f} % of one cloud lies in space the other sensor saw through "
