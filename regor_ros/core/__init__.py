@@ -3,6 +3,7 @@ from .config import ConfigError, RegorConfig
 from .features import PreparedCloud, RegistrationError
 from .pipeline import Correspondences, RegistrationResult, prepare_cloud, register
 from .search_region import SearchRegion
+from .sequence import ScanSequence
 
 __all__ = ["ConfigError", "Correspondences", "PreparedCloud", "RegistrationError",
-           "RegistrationResult", "RegorConfig", "SearchRegion", "prepare_cloud", "register"]
+           "RegistrationResult", "RegorConfig", "ScanSequence", "SearchRegion", "prepare_cloud", "register"]

@@ -126,6 +126,10 @@ class AcceptanceConfig:
                                        "from opposite sides (thin objects are; a majority means the clouds are back to "
                                        "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)
     free_space_min_seen: int = _param(50, "fewest keypoints landing on seen bins for the free-space figure to count", 1, 1000000)
+    map_view_min_seen: float = _param(0.5, "against a cloud with no viewpoint (a map), seen from the pose's sensor position: "
+                                      "the map's side counts only when at least this fraction of the scan's keypoints "
+                                      "land on bins the map fills (under a right pose the map holds the scan's surfaces)",
+                                      0.0, 1.0)
     max_ambiguity: float = _param(0.8, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
                                   "overlap (refined, passing the visibility checks) keeps this fraction of both its point "
                                   "and its feature support: a symmetric room; 10 = off (calibrated: regor-calibrate-gate)",

@@ -6,7 +6,7 @@ is prepared once and reused for every source registered against it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import List, Optional, Tuple
 
 import numpy as np
 import open3d as o3d
@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
 from .feature_index import FeatureIndex
+from .map_view import MapView, trajectory_positions
 from .visibility import RangeImage
 
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
@@ -37,10 +38,40 @@ class PreparedCloud:
     index: FeatureIndex
     config: FeatureConfig  # the settings it was prepared with
     input_size: int        # finite points in the raw cloud
-    range_image: Optional[RangeImage] = None  # what its sensor saw, when the viewpoint is known
+    views: Tuple[RangeImage, ...] = ()  # what its sensor saw from each known viewpoint
+    map_view: Optional[MapView] = None  # a cloud with no viewpoint (a map): seen from any position
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @property
+    def viewpoints(self) -> Optional[np.ndarray]:
+        """(k, 3) sensor positions in the cloud's frame, or None when unknown."""
+        return np.array([v.viewpoint for v in self.views]) if self.views else None
+
+
+@dataclass
+class SeenCloud:
+    """Raw points in one frame with the sensor positions they were seen from: one part per
+    position (a scan; several for scans fused along odometry), or one part and no viewpoint (a
+    map, an accumulated submap)."""
+
+    parts: List[np.ndarray]              # (N_i, 3) each
+    viewpoints: Optional[np.ndarray]     # (len(parts), 3), or None when unknown
+
+    @classmethod
+    def single(cls, points, viewpoint: Optional[np.ndarray]) -> "SeenCloud":
+        return cls([points], None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(1, 3))
+
+    @property
+    def points(self) -> np.ndarray:
+        return np.vstack(self.parts)
+
+    def moved(self, T: np.ndarray) -> "SeenCloud":
+        """The same cloud in another frame (``T`` maps this frame into it)."""
+        move = lambda p: p @ T[:3, :3].T + T[:3, 3]  # noqa: E731
+        return SeenCloud([move(p) for p in self.parts],
+                         None if self.viewpoints is None else move(self.viewpoints))
 
 
 def clean_points(xyz, name: str = "cloud") -> np.ndarray:
@@ -133,13 +164,21 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     return features
 
 
-def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> PreparedCloud:
-    """Downsample, estimate normals, compute FPFH and L2-normalise the features; with the sensor's
-    ``viewpoint`` (in the cloud's frame) also the range image of what it saw, from the raw points."""
-    vp = check_viewpoint(viewpoint, name)
-    points = clean_points(xyz, name)
+def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
+            trajectory=None) -> PreparedCloud:
+    """Downsample, estimate normals, compute FPFH and L2-normalise the features; with known
+    viewpoints also the range image of what each sensor saw (from its raw points), and without
+    one the map view (seen from any position; ``trajectory``, the map's sensor poses, adds the
+    views from where it was built)."""
+    if cloud.viewpoints is not None:
+        for i, vp in enumerate(cloud.viewpoints):
+            check_viewpoint(vp, name if len(cloud.parts) == 1 else f"{name} scan {i}")
+    parts = [clean_points(p, name if len(cloud.parts) == 1 else f"{name} scan {i}")
+             for i, p in enumerate(cloud.parts)]
+    points = np.vstack(parts)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     down = pcd.voxel_down_sample(config.voxel_size)
+    surface = np.asarray(down.points, dtype=np.float64)
     if config.remove_ground and len(down.points) >= GROUND_MIN_POINTS:
         ground = largest_plane(np.asarray(down.points), config.voxel_size)
         down = down.select_by_index(np.flatnonzero(ground).tolist(), invert=True)
@@ -155,8 +194,19 @@ def prepare(xyz, config: FeatureConfig, name: str = "cloud", viewpoint=None) -> 
     normals = np.asarray(down.normals, dtype=np.float64)
     features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
-    image = None if vp is None else RangeImage.build(points, vp, config.range_image_resolution)
+    views, map_view = (), None
+    if cloud.viewpoints is not None:
+        if trajectory is not None:
+            raise RegistrationError(f"{name}: a trajectory is for a cloud without viewpoint (a map)")
+        views = tuple(RangeImage.build(p, vp, config.range_image_resolution)
+                      for p, vp in zip(parts, cloud.viewpoints))
+    else:
+        try:
+            positions = None if trajectory is None else trajectory_positions(trajectory)
+        except ValueError as exc:
+            raise RegistrationError(f"{name} trajectory: {exc}") from None
+        map_view = MapView.build(surface, config.voxel_size, config.range_image_resolution, positions)
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                          config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
-                         len(points), image)
+                         len(points), views, map_view)

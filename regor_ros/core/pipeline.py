@@ -9,18 +9,20 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import (agreeing, point_refine, pose_covariance, poses_close, transform_points,
+from .estimate import (agreeing, point_refine, pose_covariance, poses_close,
                        weighted_kabsch)
-from .features import PreparedCloud, RegistrationError, check_viewpoint, prepare
+from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .initial import initial_stage
 from .matching import match_features
 from .metrics import random_rigid_motion, rotation_error_deg, translation_error
 from .regenerate import regenerate
 from .search_region import SearchRegion, outside, restrict
+from .sequence import ScanSequence
 from .verification import Rival, assess, visibility_figures
 from .visibility import ORIGIN, VisibilityFigures
 
 CloudInput = Union[np.ndarray, PreparedCloud]
+SourceInput = Union[np.ndarray, PreparedCloud, ScanSequence]
 # the regenerated and the initial pose count as one when this close: no second refinement needed
 SAME_POSE_DEG = 2.0
 SAME_POSE_FRACTION = 0.5  # of the estimator's inlier threshold
@@ -74,32 +76,80 @@ class RegistrationResult:
         }
 
 
-def prepare_cloud(points, config: RegorConfig, name: str = "cloud", *,
-                  viewpoint=ORIGIN) -> PreparedCloud:
-    """Prepare a cloud once (e.g. a static map) to pass to register() many times. ``viewpoint`` is
-    the sensor position in the cloud's frame, or None for a cloud aggregated along a trajectory
-    (a map): it lets the quality gate check free space."""
-    return prepare(points, config.features, name, viewpoint)
+class _FromCloud:
+    """The default viewpoint: the one a prepared cloud or scan sequence carries; the origin for a
+    raw array (a scan in its sensor frame)."""
+
+    def __repr__(self) -> str:
+        return "FROM_CLOUD"
 
 
-def _prepared(cloud: CloudInput, config: RegorConfig, name: str, viewpoint) -> PreparedCloud:
+FROM_CLOUD = _FromCloud()
+
+
+def prepare_cloud(points: Union[np.ndarray, ScanSequence], config: RegorConfig, name: str = "cloud", *,
+                  viewpoint=None, trajectory=None) -> PreparedCloud:
+    """Prepare a cloud once (e.g. a static map) to pass to register() many times.
+
+    ``viewpoint`` is the sensor position in the cloud's frame, or None (the default) for a cloud
+    aggregated along a trajectory, a map: never assumed, since a wrong viewpoint makes the gate
+    trust free space nobody saw. Give it for a single scan. ``trajectory`` (a map's (K, 4, 4)
+    sensor poses or (K, 3) positions, in its frame) lets the gate also check the map's free space
+    as seen from where it was built. A ScanSequence carries its own viewpoints."""
+    if isinstance(points, ScanSequence):
+        if viewpoint is not None:
+            raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
+        return prepare(points.fused(), config.features, name, trajectory)
+    return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
+
+
+def _raw(cloud: CloudInput, viewpoint, name: str) -> Union[SeenCloud, PreparedCloud]:
+    """The input as a raw cloud with its viewpoints, or the prepared cloud whose viewpoints the
+    given one must not contradict."""
+    if isinstance(cloud, PreparedCloud):
+        if viewpoint is not FROM_CLOUD:
+            _check_same_viewpoint(cloud, check_viewpoint(viewpoint, name), name)
+        return cloud
+    if isinstance(cloud, ScanSequence):
+        if viewpoint is not FROM_CLOUD:
+            raise RegistrationError(f"{name}: a scan sequence carries its viewpoint (ScanSequence.viewpoint); "
+                                    f"do not pass {name}_viewpoint")
+        return cloud.fused()
+    return SeenCloud.single(cloud, check_viewpoint(ORIGIN if viewpoint is FROM_CLOUD else viewpoint, name))
+
+
+def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: Optional[np.ndarray], name: str) -> None:
+    own = cloud.viewpoints
+    same = (own is None and viewpoint is None) or (
+        own is not None and viewpoint is not None and len(own) == 1 and np.allclose(own[0], viewpoint))
+    if not same:
+        raise RegistrationError(
+            f"{name}_viewpoint={None if viewpoint is None else viewpoint.tolist()} contradicts the "
+            f"viewpoint the {name} was prepared with "
+            f"({None if own is None else own.tolist()}); prepare it again with the right one")
+
+
+def _prepared(cloud: Union[SeenCloud, PreparedCloud], config: RegorConfig, name: str) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name, viewpoint)
+    return prepare(cloud, config.features, name)
 
 
-def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
-             source_viewpoint=ORIGIN, target_viewpoint=ORIGIN,
+def register(source: SourceInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
+             source_viewpoint=FROM_CLOUD, target_viewpoint=FROM_CLOUD,
              search_region: Optional[SearchRegion] = None) -> RegistrationResult:
     """Estimate T_target_source with no initial guess.
 
-    ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds. Each viewpoint is
-    the sensor position in that cloud's own frame (the origin for a camera fragment or a single
-    scan), or None when unknown (a map aggregated along a trajectory); the free-space check uses
-    the sides whose viewpoint is known. A PreparedCloud keeps the viewpoint it was prepared with.
+    ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds; the source may also
+    be a ScanSequence (scans fused along odometry: the pose is the newest scan's). Each viewpoint
+    is the sensor position in that cloud's own frame, or None when unknown (a map aggregated along
+    a trajectory). By default a raw array was seen from its origin (a single scan or camera
+    frame) and a prepared cloud keeps the viewpoint it was prepared with; a viewpoint given for a
+    prepared cloud must match it. Against a cloud with no viewpoint, the free-space check uses the
+    map seen from where the pose puts the source's sensors.
     Raises RegistrationError when an input cannot be registered; a registered pose that fails
     the quality gate comes back with ``accepted=False`` and the reason (that of the first attempt).
 
@@ -114,22 +164,19 @@ def register(source: CloudInput, target: CloudInput, config: Optional[RegorConfi
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
     # prepared once: the target for every attempt, the source also for the reverse check
-    source_viewpoint = check_viewpoint(source_viewpoint, "source")
-    prepared_source = _prepared(source, config, "source", source_viewpoint)
-    target = _prepared(target, config, "target", target_viewpoint)
+    raw_source = _raw(source, source_viewpoint, "source")
+    prepared_source = _prepared(raw_source, config, "source")
+    target = _prepared(_raw(target, target_viewpoint, "target"), config, "target")
     if search_region is not None:
         target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
     result = _register_once(prepared_source, target, config)
     attempts = 1
-    can_regrid = not isinstance(source, PreparedCloud)
-    while not result.accepted and attempts <= config.acceptance.retries and can_regrid:
+    while not result.accepted and attempts <= config.acceptance.retries and isinstance(raw_source, SeenCloud):
         turn = regrid_rotation(config.seed, attempts)
-        turned_viewpoint = None if source_viewpoint is None else transform_points(turn, source_viewpoint[None])[0]
         regrid_start = time.perf_counter()
         try:
-            turned = prepare(transform_points(turn, np.asarray(source, dtype=np.float64)),
-                             config.features, "source", turned_viewpoint)
+            turned = prepare(raw_source.moved(turn), config.features, "source")
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
         retry = _register_once(turned, target, config)

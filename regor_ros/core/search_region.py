@@ -51,7 +51,7 @@ def restrict(target: PreparedCloud, region: SearchRegion, source: PreparedCloud)
     points, features, config = target.points[keep], target.features[keep], target.config
     return PreparedCloud(points, target.normals[keep], features, cKDTree(points),
                          target.index.restricted(keep, features), config, target.input_size,
-                         target.range_image)
+                         target.views, target.map_view)
 
 
 def outside(T: np.ndarray, region: SearchRegion) -> str:

@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 from typing import List, Optional
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .config import AcceptanceConfig, RegorConfig
-from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix
+from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix, transform_points
 from .features import PreparedCloud
 from .metrics import rotation_error_deg
-from .visibility import VisibilityFigures, free_space_check
+from .visibility import VisibilityFigures, opposite_sides, seen_and_inside
 
 RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
@@ -52,11 +53,56 @@ class Verdict:
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                        gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None) -> VisibilityFigures:
-    """The visibility figures of T; ``matched_index`` lists the target keypoints of its inlier pairs."""
-    matched = None if matched_index is None else (target.points[matched_index], target.normals[matched_index])
-    return free_space_check(T, source.points, source.range_image, target.points, target.tree,
-                            target.range_image, matched, gate.free_space_margin,
-                            gate.free_space_margin_ratio, gate.free_space_min_seen)
+    """The visibility figures of T_target_source; ``matched_index`` lists the target keypoints of
+    its inlier pairs. Each side is a cloud's sensors (their range images), or, for a cloud with no
+    viewpoint (a map), the map seen from the other cloud's sensors placed by the pose."""
+    T_inv = np.linalg.inv(T)
+    source_side = _side(T_inv, source, target, gate, near_only=True)
+    target_side = _side(T, target, source, gate, near_only=False)
+    sides = None
+    if matched_index is not None and source.views and target.views:
+        points, normals = target.points[matched_index], target.normals[matched_index]
+        sides = opposite_sides(_nearest(target.viewpoints, points),
+                               _nearest(transform_points(T, source.viewpoints), points),
+                               points, normals, gate.free_space_min_seen)
+    return VisibilityFigures(source_side[0], target_side[0], sides, source_side[1], target_side[1],
+                             source_side[2] if source.map_view is not None else target_side[2])
+
+
+def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, gate: AcceptanceConfig,
+          near_only: bool):
+    """(fraction of ``other``'s keypoints inside ``seer``'s seen free space or None, how many
+    landed on seen bins, fraction of them seen: for a map side). ``near_only``: test only the
+    other's keypoints within the seer's sensor range (the other may be a large map)."""
+    margin, ratio, min_seen = gate.free_space_margin, gate.free_space_margin_ratio, gate.free_space_min_seen
+    if seer.views:
+        points = other.points
+        if near_only:
+            to_other = np.linalg.inv(T_seer_other)
+            near = set()
+            for view in seer.views:
+                near.update(other.tree.query_ball_point(transform_points(to_other, view.viewpoint[None])[0],
+                                                        view.max_range + margin))
+            points = other.points[np.array(sorted(near), dtype=np.int64)]
+        seen, inside = seen_and_inside(seer.views, transform_points(T_seer_other, points), margin, ratio)
+        return (inside / seen if seen >= min_seen else None), seen, None
+    if seer.map_view is not None and other.views:
+        # the map seen from where the pose puts the other cloud's sensors, out to their reach
+        points = transform_points(T_seer_other, other.points)
+        reach = max(view.max_range for view in other.views) + margin
+        images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach)
+        seen, inside = seen_and_inside(images, points, margin, ratio)
+        fraction_seen = seen / max(len(points), 1)
+        counts = seen >= min_seen and fraction_seen >= gate.map_view_min_seen
+        return (inside / seen if counts else None), seen, fraction_seen
+    return None, 0, None
+
+
+def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """For each point, the nearest of the viewpoints (the sensor that saw it, most likely)."""
+    if len(viewpoints) == 1:
+        return viewpoints[0]
+    return viewpoints[cKDTree(viewpoints).query(points)[1]]
 
 
 def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from scipy.ndimage import minimum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from .config import ConfigError
-from .estimate import transform_points
 
 MIN_RANGE = 1e-3  # points this close to the viewpoint have no direction [m]
+MAX_SPLAT_BINS = 8  # a footprint wider than 17 bins (a point right by the viewpoint) is capped
 GRAZING_COSINE = 0.2  # a surface seen more obliquely than this (78 deg) has no reliable side
 ORIGIN = (0.0, 0.0, 0.0)
 
@@ -61,26 +61,65 @@ class RangeImage:
     max_range: float           # farthest return [m]
 
     @classmethod
-    def build(cls, points: np.ndarray, viewpoint, resolution_deg: float) -> "RangeImage":
+    def build(cls, points: np.ndarray, viewpoint, resolution_deg: float, footprint: float = 0.0,
+              max_range: float = np.inf) -> "RangeImage":
+        """From the returns ``points`` seen from ``viewpoint``. With ``footprint`` (the spacing of
+        downsampled points, a map's) each point covers the bins its footprint subtends, so a
+        near surface sampled coarsely still hides what lies behind it; returns beyond
+        ``max_range`` are left out."""
         viewpoint = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         rows, cols = _shape(resolution_deg)
         ranges, index = _bins(points - viewpoint, resolution_deg, cols)
-        nearest = np.full(rows * cols, np.inf, dtype=np.float32)
-        np.minimum.at(nearest, index, ranges.astype(np.float32))
-        nearest = nearest.reshape(rows, cols)
-        # azimuth wraps around; elevation does not
-        free = minimum_filter(nearest, size=3, mode=("nearest", "wrap"))
-        free[~np.isfinite(nearest)] = 0.0
+        near = ranges <= max_range
+        ranges, index = ranges[near], index[near]
+        # half-width in bins of each point's footprint; the 3x3 neighbourhood covers one bin
+        reach = np.zeros(len(ranges), dtype=np.int64)
+        if footprint > 0 and len(ranges):
+            half = np.arctan(0.5 * footprint / np.maximum(ranges, MIN_RANGE))
+            reach = np.clip(np.ceil(half / np.radians(resolution_deg)).astype(np.int64), 1, MAX_SPLAT_BINS)
+        free = np.full((rows, cols), np.inf, dtype=np.float32)
+        covered = np.zeros((rows, cols), dtype=bool)
+        for width in np.unique(np.maximum(reach, 1)):
+            group = np.maximum(reach, 1) == width
+            nearest = np.full(rows * cols, np.inf, dtype=np.float32)
+            np.minimum.at(nearest, index[group], ranges[group].astype(np.float32))
+            nearest = nearest.reshape(rows, cols)
+            # a point covers its footprint's bins; its free depth is read one bin wider (depth
+            # edges: the nearer surface counts); azimuth wraps around, elevation does not
+            mode = ("nearest", "wrap")
+            covered |= maximum_filter(np.isfinite(nearest), size=2 * width - 1, mode=mode)
+            free = np.minimum(free, minimum_filter(nearest, size=2 * width + 1, mode=mode))
+        free[~covered] = 0.0  # a bin with no return is unknown, never free
         return cls(viewpoint, free, float(resolution_deg),
                    float(ranges.max()) if len(ranges) else 0.0)
 
     def violations(self, points: np.ndarray, margin: float, margin_ratio: float):
         """(points that land on seen bins, of those the ones inside seen free space)."""
-        ranges, index = _bins(points - self.viewpoint, self.resolution_deg, self.free_depth.shape[1])
-        depth = self.free_depth.ravel()[index]
-        seen = depth > 0
-        inside = seen & (ranges < depth - margin - margin_ratio * depth)
+        seen, inside = self.classify(points, margin, margin_ratio)
         return int(seen.sum()), int(inside.sum())
+
+    def classify(self, points: np.ndarray, margin: float, margin_ratio: float):
+        """Per point: (lands on a seen bin, lies inside seen free space)."""
+        offsets = points - self.viewpoint
+        ranges = np.linalg.norm(offsets, axis=1)
+        usable = ranges > MIN_RANGE
+        seen, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
+        ranges, index = _bins(offsets[usable], self.resolution_deg, self.free_depth.shape[1])
+        depth = self.free_depth.ravel()[index]
+        seen[usable] = depth > 0
+        inside[usable] = (depth > 0) & (ranges < depth - margin - margin_ratio * depth)
+        return seen, inside
+
+
+def seen_and_inside(images, points: np.ndarray, margin: float, margin_ratio: float):
+    """(points on a bin any image has seen, of those the ones inside any image's free space): a
+    cloud seen from several viewpoints (scans fused along odometry, a map's trajectory)."""
+    seen, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
+    for image in images:
+        s, i = image.classify(points, margin, margin_ratio)
+        seen |= s
+        inside |= i
+    return int(seen.sum()), int(inside.sum())
 
 
 def _shape(resolution_deg: float):
@@ -112,6 +151,7 @@ class VisibilityFigures:
     opposite_sides: Optional[float] = None  # matched points the two sensors saw from opposite sides
     source_seen: int = 0               # target keypoints that landed on the source's seen bins
     target_seen: int = 0
+    map_seen: Optional[float] = None   # against a map: fraction of the scan's keypoints on bins the map fills
 
     @property
     def both_sides(self) -> bool:
@@ -127,7 +167,8 @@ class VisibilityFigures:
     def as_dict(self):
         return {"source_violation": self.source_violation, "target_violation": self.target_violation,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
-                "target_seen": self.target_seen, "worst": self.worst, "both_sides": self.both_sides}
+                "target_seen": self.target_seen, "map_seen": self.map_seen, "worst": self.worst,
+                "both_sides": self.both_sides}
 
 
 def _fraction(seen: int, inside: int, min_seen: int) -> Optional[float]:
@@ -137,39 +178,10 @@ def _fraction(seen: int, inside: int, min_seen: int) -> Optional[float]:
 def opposite_sides(sensor_a: np.ndarray, sensor_b: np.ndarray, points: np.ndarray,
                    normals: np.ndarray, min_seen: int) -> Optional[float]:
     """Fraction of surface points (with unoriented normals) that the two sensors, in the points'
-    frame, see from opposite sides; views at grazing angles do not count."""
+    frame, see from opposite sides; views at grazing angles do not count. A sensor is a (3,)
+    position or one (N, 3) position per point."""
     to_a, to_b = sensor_a - points, sensor_b - points
     cos_a = (to_a * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_a, axis=1), MIN_RANGE)
     cos_b = (to_b * normals).sum(axis=1) / np.maximum(np.linalg.norm(to_b, axis=1), MIN_RANGE)
     clear = (np.abs(cos_a) > GRAZING_COSINE) & (np.abs(cos_b) > GRAZING_COSINE)
     return _fraction(int(clear.sum()), int((clear & (cos_a * cos_b < 0)).sum()), min_seen)
-
-
-def free_space_check(T: np.ndarray, source_points: np.ndarray, source_image: Optional[RangeImage],
-                     target_points: np.ndarray, target_tree, target_image: Optional[RangeImage],
-                     matched: Optional[tuple], margin: float, margin_ratio: float,
-                     min_seen: int) -> VisibilityFigures:
-    """Every visibility figure of T_target_source; a side without a viewpoint is skipped.
-
-    ``matched`` is (points, normals) of the target keypoints that the pose's inlier pairs match,
-    for the opposite-sides figure (which needs both viewpoints). Only target keypoints within the
-    source sensor's range of its position are tested, so a large map costs a ball query, not a
-    pass over the map.
-    """
-    source_seen = source_inside = target_seen = target_inside = 0
-    sides = None
-    if source_image is not None:
-        sensor_in_target = transform_points(T, source_image.viewpoint[None])[0]
-        near = target_tree.query_ball_point(sensor_in_target, source_image.max_range + margin)
-        if near:
-            in_source = transform_points(np.linalg.inv(T), target_points[np.asarray(near)])
-            source_seen, source_inside = source_image.violations(in_source, margin, margin_ratio)
-        if target_image is not None and matched is not None:
-            sides = opposite_sides(target_image.viewpoint, sensor_in_target, *matched, min_seen)
-    if target_image is not None:
-        target_seen, target_inside = target_image.violations(
-            transform_points(T, source_points), margin, margin_ratio)
-    return VisibilityFigures(
-        _fraction(source_seen, source_inside, min_seen) if source_image is not None else None,
-        _fraction(target_seen, target_inside, min_seen) if target_image is not None else None,
-        sides, source_seen, target_seen)

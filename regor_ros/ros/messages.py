@@ -25,6 +25,15 @@ def pose_from_matrix(T: np.ndarray) -> Pose:
     return pose
 
 
+def odometry_pose(msg) -> np.ndarray:
+    """The 4x4 pose of a nav_msgs/Odometry's child frame in its frame."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = (p.x, p.y, p.z)
+    return T
+
+
 def pose_stamped(result: RegistrationResult, header: Header) -> PoseStamped:
     return PoseStamped(header=header, pose=pose_from_matrix(result.transform))
 

@@ -19,6 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
@@ -28,10 +29,11 @@ from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
+from ..core.scan_history import ScanHistory
 from ..core.estimate import transform_points
 from .diagnostics import Health, diagnostic_array
 from .initial_guess import search_region
-from .messages import correspondence_markers, pose_stamped, pose_with_covariance, status_message
+from .messages import correspondence_markers, odometry_pose, pose_stamped, pose_with_covariance, status_message
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 
@@ -72,7 +74,9 @@ class RegisterNode(Node):
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_key = None  # (target serial, viewpoint, feature settings) of the cached map
         self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
-        self.stats = {"source_clouds": 0, "target_clouds": 0, "registrations": 0, "accepted_poses": 0,
+        self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
+        self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
+                      "accepted_poses": 0,
                       "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
         self._stopping = False
         self._warned = {}  # kind of bad input -> when it was last logged
@@ -84,6 +88,10 @@ class RegisterNode(Node):
                                  qos_profile(self.settings.target_qos))
         self.create_subscription(PoseWithCovarianceStamped, "initial_guess", self._on_initial_guess,
                                  qos_profile("reliable"))
+        # best effort accepts reliable and best-effort publishers alike; a deep queue for 100 Hz odometry
+        self.create_subscription(Odometry, "odometry", self._on_odometry,
+                                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                                            reliability=ReliabilityPolicy.BEST_EFFORT))
         self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
         self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
@@ -124,6 +132,17 @@ class RegisterNode(Node):
     def _on_target(self, msg: PointCloud2) -> None:
         self._store("target", msg)
 
+    def _history_capacity(self) -> int:
+        """Scans kept for accumulation: twice the scans fused, so ones without odometry can be skipped."""
+        return 2 * self.settings.accumulation().scans + 2
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        """The scan frame's pose in the odometry frame at the message's stamp."""
+        pose = odometry_pose(msg) @ self.settings.odometry_extrinsic()
+        with self._lock:
+            self.stats["odometry_messages"] += 1
+            self._history.add_odometry(_stamp_seconds(msg.header), pose)
+
     def _on_initial_guess(self, msg: PoseWithCovarianceStamped) -> None:
         with self._lock:
             self._hint = msg
@@ -148,6 +167,10 @@ class RegisterNode(Node):
             cloud = Cloud(msg.header, points, self._serials[which])
             if which == "source":
                 self._source = cloud
+                if self._history.scans.maxlen != self._history_capacity():
+                    self._history.scans = type(self._history.scans)(self._history.scans,
+                                                                     maxlen=self._history_capacity())
+                self._history.add_scan(_stamp_seconds(msg.header), points)
             else:
                 self._target = cloud
             self._lock.notify()
@@ -249,6 +272,17 @@ class RegisterNode(Node):
         return search_region(hint, settings.initial_guess_sigmas, settings.initial_guess_min_radius,
                              settings.initial_guess_max_radius)
 
+    def _source_input(self, src: Cloud, settings):
+        """The scan alone, or fused with the scans before it along odometry (accumulate_scans), and
+        what was fused (for status)."""
+        limits = settings.accumulation()
+        if limits.scans < 2:
+            return src.points, None
+        with self._lock:
+            sequence, info = self._history.sequence(_stamp_seconds(src.header), limits,
+                                                    settings.viewpoints()[0])
+        return (src.points if sequence is None else sequence), info
+
     def _register(self, src: Cloud, tgt: Cloud, config, settings, hint) -> None:
         source_viewpoint, target_viewpoint = settings.viewpoints()
         target = tgt.points
@@ -258,8 +292,13 @@ class RegisterNode(Node):
                 return
         try:
             region = self._search_region(hint, tgt, settings)
-            result = register(src.points, target, config, source_viewpoint=source_viewpoint,
-                              target_viewpoint=target_viewpoint, search_region=region)
+            source, accumulation = self._source_input(src, settings)
+            if source is src.points:
+                result = register(source, target, config, source_viewpoint=source_viewpoint,
+                                  target_viewpoint=target_viewpoint, search_region=region)
+            else:  # the fused scans carry their viewpoints (the scan frame's origin)
+                result = register(source, target, config, target_viewpoint=target_viewpoint,
+                                  search_region=region)
         except RegistrationError as exc:
             self.health.last_error = str(exc)
             self._bad_input(f"registration skipped: {exc}")
@@ -276,7 +315,7 @@ class RegisterNode(Node):
             if result.accepted and region is not None and self._hint is hint:
                 self._hint = None  # the robot is found: the hint has done its job
             extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
-                     "mode": settings.mode, **self.stats,
+                     "mode": settings.mode, **self.stats, "accumulation": accumulation,
                      **(self.health.map_info if settings.mode == "map" else {}),
                      "search_region": None if region is None else {
                          "centre": [float(v) for v in region.centre], "radius": region.radius}}

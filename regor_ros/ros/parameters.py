@@ -9,10 +9,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Dict, Tuple
 
+import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from scipy.spatial.transform import Rotation
 
 from ..core.config import CHOICES as CORE_CHOICES
 from ..core.config import PRESETS, ConfigError, RegorConfig, _param
+from ..core.scan_history import AccumulationLimits
 from ..core.visibility import ORIGIN, parse_viewpoint
 
 QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
@@ -52,6 +55,38 @@ class NodeSettings:
                                              "certain it claims to be [m]", 0.0, 1e5)
     initial_guess_max_radius: float = _param(50.0, "the search radius of an initial_guess is at most this, however "
                                              "uncertain it is [m]", 0.0, 1e6)
+
+    accumulate_scans: int = _param(0, "scans fused along odometry into one source, the newest included: 1 = "
+                                   "each scan alone; 0 = auto (1 in pairs mode, 5 in map mode: a sparse scan "
+                                   "often has too few correct matches to be found in a map; needs odometry)", 0, 100)
+    accumulate_max_distance: float = _param(10.0, "fuse only scans whose sensor was within this of the newest "
+                                            "one's (odometry drifts with distance) [m]", 0.0, 1e4)
+    accumulate_max_age: float = _param(10.0, "fuse only scans at most this much older than the newest [s]", 0.0, 1e4)
+    odometry_tolerance: float = _param(0.05, "a scan is placed by the odometry interpolated around its stamp, or "
+                                       "the nearest message within this; a scan with none is not fused [s]", 0.0, 10.0)
+    odometry_to_scan: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the scan's frame in the odometry's "
+                                   "child frame: 'x, y, z, roll, pitch, yaw' [m, rad] (identity when the "
+                                   "odometry is the sensor's own)")
+
+    def accumulation(self) -> AccumulationLimits:
+        """How many scans to fuse and how far back, with the auto default resolved."""
+        scans = self.accumulate_scans or (5 if self.mode == "map" else 1)
+        return AccumulationLimits(scans, self.accumulate_max_distance, self.accumulate_max_age,
+                                  self.odometry_tolerance)
+
+    def odometry_extrinsic(self) -> np.ndarray:
+        """T_child_scan from odometry_to_scan; ConfigError when malformed."""
+        try:
+            values = [float(v) for v in self.odometry_to_scan.replace(",", " ").split()]
+        except ValueError:
+            values = []
+        if len(values) != 6 or not np.isfinite(values).all():
+            raise ConfigError(f"odometry_to_scan={self.odometry_to_scan!r}: give 'x, y, z, roll, pitch, yaw' "
+                              "in metres and radians")
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
+        T[:3, 3] = values[:3]
+        return T
 
     def viewpoints(self):
         """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""
@@ -113,6 +148,7 @@ def make_settings(values: Dict) -> NodeSettings:
         if low is not None and not low <= value <= high:
             raise ConfigError(f"{f.name}={value!r} is outside its valid range [{low}, {high}]")
     settings.viewpoints()  # raises on a malformed viewpoint
+    settings.odometry_extrinsic()  # and on a malformed extrinsic
     if settings.initial_guess_min_radius > settings.initial_guess_max_radius:
         raise ConfigError("initial_guess_min_radius is larger than initial_guess_max_radius")
     return settings

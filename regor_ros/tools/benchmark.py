@@ -42,6 +42,22 @@ CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation
               "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals", "error"]
 
 
+def gate_columns(figures: dict) -> dict:
+    """The verdict, the gate's figures and the stage timings of a RegistrationResult.summary(), as
+    CSV columns (what regor-calibrate-gate reads)."""
+    visibility = figures["visibility"]
+    return {**{f"seconds_{stage}": figures["timings"][stage] for stage in STAGES},
+            "reason": figures["reason"], "num_inliers": figures["num_inliers"],
+            "fitness": figures["fitness"], "feature_inliers": figures["feature_inliers"],
+            "free_space_source": visibility["source_violation"],
+            "free_space_target": visibility["target_violation"],
+            "opposite_sides": visibility["opposite_sides"], "map_seen": visibility["map_seen"],
+            "ambiguity": figures["ambiguity"],
+            "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
+                               f"{r['violation']}:{r['opposite_sides']}:{r['distance_deg']:.1f}"
+                               for r in figures["rivals"])}
+
+
 def load_pairs(folder: Path, name_filter: Optional[str]):
     """Each selected pair; its index in pairs.json seeds the pair's random motion, so a filtered
     run moves a pair as a full run does."""
@@ -113,17 +129,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
             "seconds_total": out.seconds + (0.0 if out.includes_features else feature_seconds),
         })
         if out.figures is not None:
-            visibility = out.figures["visibility"]
-            row.update({f"seconds_{stage}": out.figures["timings"][stage] for stage in STAGES})
-            row.update({"reason": out.figures["reason"], "num_inliers": out.figures["num_inliers"],
-                        "fitness": out.figures["fitness"], "feature_inliers": out.figures["feature_inliers"],
-                        "free_space_source": visibility["source_violation"],
-                        "free_space_target": visibility["target_violation"],
-                        "opposite_sides": visibility["opposite_sides"],
-                        "ambiguity": out.figures["ambiguity"],
-                        "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
-                                           f"{r['violation']}:{r['opposite_sides']}:{r['distance_deg']:.1f}"
-                                           for r in out.figures["rivals"])})
+            row.update(gate_columns(out.figures))
         if out.final is not None and T_gt is not None:
             row["inliers_final"] = int(correct_mask(*out.final, T_gt, threshold).sum())
             row["final_count"] = len(out.final[0])

@@ -1,10 +1,15 @@
 """Scan-to-map relocalization benchmark (``regor-bench --maps DIR`` and ``--map-scaling``).
 
-A sequence folder holds ``map.npy`` (no single viewpoint), ``queries.json`` and
-``queries/<id>/scan.npy`` + ``gt.txt`` (T_map_scan; the scan's sensor at its origin). Regor
-prepares the map once and registers every query against it, as the node does in map mode;
-KISS-Matcher gets the scan and the map on every call (it has no prepared-map interface). Each
-(sequence, method) runs in its own process so that its peak memory is its own.
+A sequence folder holds ``map.npy`` (no single viewpoint) with ``map_trajectory.txt`` (the sensor
+poses it was built from), ``queries.json`` and ``queries/<id>/scan.npy`` + ``gt.txt`` (T_map_scan;
+the scan's sensor at its origin), and ``scans/`` + ``odometry.txt``: the scans a robot received up
+to each query with their odometry poses. Every query is registered twice: the scan alone, and the
+scan fused with the ones before it along odometry (``sequence`` in queries.json), as the node does
+with an odometry input. Regor prepares the map once with its trajectory and registers every query
+against it, as the node does in map mode; KISS-Matcher gets the same scan or fused cloud and the
+map on every call (it has no prepared-map interface). The cross-map set registers each sequence's
+queries against every other sequence's map: any published pose there is wrong. Each (map,
+method) runs in its own process so that its peak memory is its own.
 
 ``--map-scaling`` tiles one real map side by side (each copy turned about the vertical) to grow
 it, and measures map preparation, registration time and peak memory against map size. The copies
@@ -16,20 +21,25 @@ import json
 import multiprocessing
 import resource
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, List, Optional
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from ..core import RegorConfig, prepare_cloud, register
+from ..core import RegorConfig, ScanSequence, prepare_cloud, register
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
-from .benchmark import STAGES, write_results
+from .benchmark import STAGES, gate_columns, write_results
 
 MAP_METHODS = ("regor", "kiss-matcher")
-MAP_FIELDS = ["sequence", "method", "query", "kind", "map_points", "map_keypoints", "success", "accepted",
-              "rotation_error_deg", "translation_error_m", "seconds", *(f"seconds_{stage}" for stage in STAGES),
-              "map_seconds", "peak_memory_gb", "feature_inliers", "free_space_source", "reason"]
+INPUTS = ("single", "sequence")
+MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
+              "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
+              *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "num_inliers",
+              "fitness", "feature_inliers", "free_space_source", "free_space_target", "opposite_sides",
+              "map_seen", "ambiguity", "rivals", "reason", "error"]
 TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 SCALING_QUERIES = 10  # queries registered at each map size (the median of 5 moved by 0.1 s between runs)
 
@@ -38,12 +48,52 @@ def _peak_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # kB on Linux
 
 
+def load_poses(path: Path) -> Dict[int, np.ndarray]:
+    """``k tx ty tz qx qy qz qw`` lines (TUM order, Hamilton quaternion) as {k: 4x4}."""
+    poses = {}
+    for line in path.read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            k, *v = line.split()
+            poses[int(k)] = to_matrix(Rotation.from_quat([float(x) for x in v[3:7]]).as_matrix(),
+                                      np.array([float(x) for x in v[:3]]))
+    return poses
+
+
+@dataclass
+class Query:
+    sequence: str
+    id: str
+    kind: str                 # scan, or submap (scans merged around one)
+    scan: np.ndarray
+    truth: np.ndarray         # T_map_scan
+    history: Optional[ScanSequence]  # the scans received up to it with odometry; None for a submap
+
+    def cloud(self, which: str):
+        return self.scan if which == "single" else self.history
+
+
 def load_sequence(folder: Path):
-    """(map points, [(query id, kind, scan, T_map_scan)]) of one sequence folder."""
+    """(map points, map trajectory (K, 4, 4) or None, [Query]) of one sequence folder."""
     queries = json.loads((folder / "queries.json").read_text())
-    return np.load(folder / "map.npy"), [
-        (q["id"], q["kind"], np.load(folder / "queries" / q["id"] / "scan.npy"),
-         np.loadtxt(folder / "queries" / q["id"] / "gt.txt")) for q in queries]
+    trajectory_file, odometry_file = folder / "map_trajectory.txt", folder / "odometry.txt"
+    trajectory = np.array(list(load_poses(trajectory_file).values())) if trajectory_file.is_file() else None
+    odometry = load_poses(odometry_file) if odometry_file.is_file() else {}
+    out = []
+    for q in queries:
+        history = None
+        if q["kind"] == "scan" and q.get("sequence") and all(k in odometry for k in q["sequence"]):
+            history = ScanSequence([np.load(folder / "scans" / f"{k:06d}.npy") for k in q["sequence"]],
+                                   [odometry[k] for k in q["sequence"]])
+        out.append(Query(folder.name, q["id"], q["kind"], np.load(folder / "queries" / q["id"] / "scan.npy"),
+                         np.loadtxt(folder / "queries" / q["id"] / "gt.txt"), history))
+    return np.load(folder / "map.npy"), trajectory, out
+
+
+def place_of(sequence: str) -> str:
+    """The place a sequence was recorded, for leave-one-place-out calibration: its name without
+    the SLAM system that built the map (``fastlio_avia_hku2`` is ``avia_hku2``, the campus of the
+    pair sets' ``avia_hku*``)."""
+    return sequence.split("_", 1)[1]
 
 
 def _score(T: np.ndarray, truths: List[np.ndarray]) -> tuple:
@@ -52,37 +102,46 @@ def _score(T: np.ndarray, truths: List[np.ndarray]) -> tuple:
     return is_success(T, best, "outdoor"), rotation_error_deg(T, best), translation_error(T, best)
 
 
-def _run_sequence(job) -> List[dict]:
-    """One method on every query of one sequence (in a child process)."""
-    folder, method, config = job
-    cloud, queries = load_sequence(Path(folder))
-    rows = []
-    base = {"sequence": Path(folder).name, "method": method, "map_points": len(cloud)}
+def _run_map(job) -> List[dict]:
+    """One method on every query against one map (in a child process): the map's own queries,
+    then every other sequence's (cross-map: no true pose)."""
+    folder, others, method, config = job
+    cloud, trajectory, queries = load_sequence(Path(folder))
+    for other in others:
+        queries += load_sequence(Path(other))[2]
+    name = Path(folder).name
+    base = {"map": name, "method": method, "kind": "outdoor", "map_points": len(cloud)}
     if method == "regor":
         start = time.perf_counter()
-        prepared = prepare_cloud(cloud, config, "map", viewpoint=None)
+        prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
         base.update(map_seconds=time.perf_counter() - start, map_keypoints=len(prepared))
-    for qid, kind, scan, T_gt in queries:
-        row = dict(base, query=qid, kind=kind)
-        if method == "regor":
-            result = register(scan, prepared, config)
-            T, seconds, accepted, reason = result.transform, result.timings["total"], result.accepted, result.reason
-            # the gate's figures whatever the verdict; the map has no viewpoint: the scan's side only
-            row.update({f"seconds_{stage}": result.timings[stage] for stage in STAGES},
-                       feature_inliers=result.num_feature_inliers,
-                       free_space_source=result.visibility.source_violation)
-        else:
-            import kiss_matcher as km
-            matcher = km.KISSMatcher(km.KISSMatcherConfig(config.features.voxel_size))
-            start = time.perf_counter()
-            solution = matcher.estimate(np.asarray(scan, np.float32), np.asarray(cloud, np.float32))
-            seconds = time.perf_counter() - start
-            T = to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3))
-            accepted, reason = bool(solution.valid), ""
-        success, rot, trans = _score(T, [T_gt])
-        row.update(success=success, accepted=accepted, rotation_error_deg=rot, translation_error_m=trans,
-                   seconds=seconds, reason=reason)
-        rows.append(row)
+    rows = []
+    for query in queries:
+        for which in INPUTS:
+            source = query.cloud(which)
+            if source is None:
+                continue
+            same = query.sequence == name
+            row = dict(base, query=f"{query.sequence}/{query.id}", input=which, query_kind=query.kind,
+                       set="same" if same else "cross", scans=1 if which == "single" else len(source.scans),
+                       pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
+            if method == "regor":
+                result = register(source, prepared, config)
+                T, seconds, accepted = result.transform, result.timings["total"], result.accepted
+                row.update(gate_columns(result.summary()))
+            else:
+                import kiss_matcher as km
+                points = source if which == "single" else source.fused().points
+                matcher = km.KISSMatcher(km.KISSMatcherConfig(config.features.voxel_size))
+                start = time.perf_counter()
+                solution = matcher.estimate(np.asarray(points, np.float32), np.asarray(cloud, np.float32))
+                seconds = time.perf_counter() - start
+                T = to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3))
+                accepted = bool(solution.valid)
+            success, rot, trans = _score(T, [query.truth]) if same else (False, np.nan, np.nan)
+            row.update(success=success, accepted=accepted, rotation_error_deg=rot, translation_error_m=trans,
+                       seconds=seconds)
+            rows.append(row)
     for row in rows:
         row["peak_memory_gb"] = _peak_gb()
     return rows
@@ -98,48 +157,80 @@ def _median(values) -> float:
     return float(np.median(values)) if len(values) else float("nan")
 
 
-def map_report(rows: List[dict], header: str) -> str:
-    lines = [header, "", "| sequence | method | correct | published correct / WRONG | median s per query | "
-             "map preparation s | peak memory GB |", "|---|---|---|---|---|---|---|"]
+def _groups(rows: List[dict], *keys) -> Dict[tuple, List[dict]]:
     groups: Dict[tuple, List[dict]] = {}
     for r in rows:
-        groups.setdefault((r["sequence"], r["method"]), []).append(r)
-    for (sequence, method), group in groups.items():
+        groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    return groups
+
+
+def _published(group: List[dict]) -> tuple:
+    """(published correct, published wrong)."""
+    right = sum(r["accepted"] is True and r["success"] for r in group)
+    return right, sum(r["accepted"] is True for r in group) - right
+
+
+def map_report(rows: List[dict], header: str) -> str:
+    same = [r for r in rows if r["set"] == "same"]
+    cross = [r for r in rows if r["set"] == "cross"]
+    lines = [header, "", "## Queries against their own map", "",
+             "`single`: the query scan alone; `sequence`: fused with the scans received just before it "
+             "(odometry). KISS-Matcher's `published` is its own valid flag.", "",
+             "| method | input | queries | correct | published correct / WRONG | published correct / all queries "
+             "| published correct / correct | median s per query |", "|---|---|---|---|---|---|---|---|"]
+    for (method, which), group in _groups(same, "method", "input").items():
         correct = sum(r["success"] for r in group)
-        published = [r for r in group if r["accepted"]]
-        right = sum(r["success"] for r in published)
+        right, wrong = _published(group)
+        lines.append(f"| {method} | {which} | {len(group)} | {correct} | {right} / {wrong} | "
+                     f"{100 * right / len(group):.0f} % | {100 * right / max(correct, 1):.0f} % | "
+                     f"{_median([r['seconds'] for r in group]):.2f} |")
+    lines += ["", "Per map:", "", "| map | method | input | correct | published correct / WRONG | median s | "
+              "map preparation s | peak memory GB |", "|---|---|---|---|---|---|---|---|"]
+    for (name, method, which), group in _groups(same, "map", "method", "input").items():
+        right, wrong = _published(group)
         prep = group[0].get("map_seconds")
-        lines.append(f"| {sequence} | {method} | {correct}/{len(group)} | {right} / {len(published) - right} | "
-                     f"{_median([r['seconds'] for r in group]):.2f} | "
+        lines.append(f"| {name} | {method} | {which} | {sum(r['success'] for r in group)}/{len(group)} | "
+                     f"{right} / {wrong} | {_median([r['seconds'] for r in group]):.2f} | "
                      f"{'-' if prep is None else f'{prep:.1f}'} | {group[0]['peak_memory_gb']:.2f} |")
-    timed = [(sequence, group) for (sequence, _), group in groups.items()
+    if cross:
+        lines += ["", "## Cross-map: every query against every other sequence's map (any published pose is wrong)", "",
+                  "| method | input | registrations | published WRONG | median s |", "|---|---|---|---|---|"]
+        for (method, which), group in _groups(cross, "method", "input").items():
+            lines.append(f"| {method} | {which} | {len(group)} | {_published(group)[1]} | "
+                         f"{_median([r['seconds'] for r in group]):.2f} |")
+    timed = [(key, group) for key, group in _groups(same, "map", "input").items()
              if all(f"seconds_{stage}" in r for r in group for stage in STAGES)]
     if timed:
-        lines += ["", "Regor's median seconds per stage (the scan's FPFH is the rest of the time per query):", "",
-                  "| sequence | " + " | ".join(STAGES) + " |", "|---|" + "---|" * len(STAGES)]
-        for sequence, group in timed:
+        lines += ["", "Regor's median seconds per stage (the scan's FPFH and the map's views are the rest):", "",
+                  "| map | input | " + " | ".join(STAGES) + " |", "|---|---|" + "---|" * len(STAGES)]
+        for (name, which), group in timed:
             medians = (_median([r[f"seconds_{stage}"] for r in group]) for stage in STAGES)
-            lines.append(f"| {sequence} | " + " | ".join(f"{m:.3f}" for m in medians) + " |")
+            lines.append(f"| {name} | {which} | " + " | ".join(f"{m:.3f}" for m in medians) + " |")
     lines += ["", "Per query (error against the truth; `published` = passed the method's own gate):", "",
-              "| sequence | query | method | correct | published | RE deg | TE m | s | reason |",
+              "| query | input | method | correct | published | RE deg | TE m | s | reason |",
               "|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r['sequence']} | {r['query']} | {r['method']} | {'yes' if r['success'] else 'no'} | "
+    for r in same:
+        lines.append(f"| {r['query']} | {r['input']} | {r['method']} | {'yes' if r['success'] else 'no'} | "
                      f"{'yes' if r['accepted'] else 'no'} | {r['rotation_error_deg']:.1f} | "
-                     f"{r['translation_error_m']:.2f} | {r['seconds']:.2f} | {r['reason']} |")
+                     f"{r['translation_error_m']:.2f} | {r['seconds']:.2f} | {r.get('reason', '')} |")
     return "\n".join(lines) + "\n"
 
 
 def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str) -> str:
-    """Every sequence under ``folder`` with every method; writes maps.md, .csv and .png."""
-    sequences = sorted(p for p in folder.iterdir() if (p / "queries.json").is_file())
+    """Every sequence's map under ``folder`` with every method; writes maps.md, .csv and .png."""
+    sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
     if not sequences:
         raise SystemExit(f"{folder} holds no sequence folder with queries.json")
     rows = []
     for sequence in sequences:
+        others = [s for s in sequences if s != sequence]
         for method in methods:
-            rows += _in_child(_run_sequence, (str(sequence), method, config))
-            print(f"{sequence.name} {method}: {sum(r['success'] for r in rows if r['method'] == method and r['sequence'] == sequence.name)} correct", flush=True)
+            new = _in_child(_run_map, (sequence, others, method, config))
+            rows += new
+            own = [r for r in new if r["set"] == "same"]
+            print(f"{Path(sequence).name} {method}: {sum(r['success'] for r in own)} of {len(own)} correct, "
+                  f"{sum(r['accepted'] is True and r['success'] for r in own)} published; cross-map: "
+                  f"{sum(r['accepted'] is True for r in new if r['set'] == 'cross')} published", flush=True)
     report = map_report(rows, header)
     write_results(out, "maps", report, rows, MAP_FIELDS, _plot_maps)
     return report
@@ -149,20 +240,20 @@ def _plot_maps(rows: List[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    groups = sorted({(r["sequence"], r["method"]) for r in rows})
+    same = [r for r in rows if r["set"] == "same"]
+    groups = sorted(_groups(same, "method", "input").items())
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    labels = [f"{s}\n{m}" for s, m in groups]
-    correct = [sum(r["success"] for r in rows if (r["sequence"], r["method"]) == g) for g in groups]
-    published = [sum(r["success"] and r["accepted"] for r in rows if (r["sequence"], r["method"]) == g) for g in groups]
     x = np.arange(len(groups))
-    axes[0].bar(x - 0.2, correct, 0.4, label="correct")
-    axes[0].bar(x + 0.2, published, 0.4, label="published correct")
-    axes[0].set_ylabel("queries")
+    axes[0].bar(x - 0.2, [sum(r["success"] for r in g) for _, g in groups], 0.4, label="correct")
+    axes[0].bar(x + 0.2, [_published(g)[0] for _, g in groups], 0.4, label="published correct")
+    axes[0].bar(x + 0.2, [_published(g)[1] for _, g in groups], 0.4,
+                bottom=[_published(g)[0] for _, g in groups], color="red", label="published WRONG")
+    axes[0].set_ylabel("queries against their own map")
     axes[0].legend()
-    axes[1].bar(x, [_median([r["seconds"] for r in rows if (r["sequence"], r["method"]) == g]) for g in groups])
+    axes[1].bar(x, [_median([r["seconds"] for r in g]) for _, g in groups])
     axes[1].set_ylabel("median seconds per query")
     for ax in axes:
-        ax.set_xticks(x, labels, fontsize=7)
+        ax.set_xticks(x, [f"{m}\n{i}" for (m, i), _ in groups], fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -187,18 +278,19 @@ def tiled(cloud: np.ndarray, tiles: int) -> tuple:
 def _run_scaling(job) -> dict:
     """Prepare the tiled map and register the queries (in a child process)."""
     folder, tiles, config = job
-    cloud, queries = load_sequence(Path(folder))
+    cloud, trajectory, queries = load_sequence(Path(folder))
     big, poses = tiled(cloud, tiles)
     del cloud
     start = time.perf_counter()
-    prepared = prepare_cloud(big, config, "map", viewpoint=None)
+    prepared = prepare_cloud(big, config, "map", trajectory=None if trajectory is None else np.vstack(
+        [P @ trajectory for P in poses]))
     prep = time.perf_counter() - start
     seconds, matching, correct, published = [], [], 0, 0
-    for _, kind, scan, T_gt in [q for q in queries if q[1] == "scan"][:SCALING_QUERIES]:
-        result = register(scan, prepared, config)
+    for query in [q for q in queries if q.kind == "scan"][:SCALING_QUERIES]:
+        result = register(query.scan, prepared, config)
         seconds.append(result.timings["total"])
         matching.append(result.timings["matching"])
-        success = _score(result.transform, [P @ T_gt for P in poses])[0]
+        success = _score(result.transform, [P @ query.truth for P in poses])[0]
         correct += success
         published += success and result.accepted
     return {"tiles": tiles, "map_points": len(big), "map_keypoints": len(prepared),

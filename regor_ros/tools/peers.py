@@ -31,9 +31,10 @@ class MethodResult:
 def _regor_variant(overrides: Dict) -> Callable:
     def run(src: PreparedCloud, tgt: PreparedCloud, raw_src, raw_tgt, config: RegorConfig, seed: int):
         cfg = config.replace({**overrides, "seed": seed})
-        viewpoint = None if src.range_image is None else src.range_image.viewpoint
-        # retries re-grid the raw source
-        r = register(raw_src if cfg.acceptance.retries else src, tgt, cfg, source_viewpoint=viewpoint)
+        # retries re-grid the raw source, seen from where the prepared one was
+        viewpoint = None if src.viewpoints is None else src.viewpoints[0]
+        r = (register(raw_src, tgt, cfg, source_viewpoint=viewpoint) if cfg.acceptance.retries
+             else register(src, tgt, cfg))
         return MethodResult(r.transform, r.timings["total"] - r.timings["features"],
                             final=(r.final.source, r.final.target),
                             initial=(r.initial.source, r.initial.target), accepted=r.accepted,

@@ -1,0 +1,91 @@
+"""The map seen from a position: the free-space check's side for a cloud with no single viewpoint.
+
+A map is aggregated along a trajectory, so no one sensor's range image records what was seen
+through. Two views stand in for it:
+- from the candidate sensor position: if the pose is right, the source sensor sits in the map's
+  free space and sees the map's surfaces, so no source point may float in front of the nearest
+  map surface in its direction (a wrong pose puts the scan's walls and cars into the map's
+  streets and rooms, or the sensor inside a building it sees from within);
+- from the map's own sensor poses near the candidate, when its trajectory is known: space those
+  sensors really saw through.
+The surfaces are the map voxel-downsampled with its ground kept; each point covers the bins its
+voxel subtends, so a coarsely sampled near wall still hides what lies behind it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .visibility import RangeImage
+
+TRAJECTORY_VIEWS = 3      # nearest map sensor poses whose views are used for one candidate
+TRAJECTORY_SPACING = 5.0  # in voxels: poses closer than this to a kept one see about the same
+MAX_CACHED_VIEWS = 256    # trajectory views kept (about 0.26 MB each at 1 deg)
+
+
+def thinned(positions: np.ndarray, spacing: float) -> np.ndarray:
+    """The positions in order, dropping each one closer than ``spacing`` to the last kept."""
+    kept: List[np.ndarray] = []
+    for p in positions:
+        if not kept or np.linalg.norm(p - kept[-1]) >= spacing:
+            kept.append(p)
+    return np.array(kept, dtype=np.float64).reshape(-1, 3)
+
+
+def trajectory_positions(trajectory) -> np.ndarray:
+    """(K, 3) sensor positions from (K, 3) positions or (K, 4, 4) poses (T_map_sensor)."""
+    array = np.asarray(trajectory, dtype=np.float64)
+    if array.ndim == 3 and array.shape[1:] == (4, 4):
+        array = array[:, :3, 3]
+    if array.ndim != 2 or array.shape[1] != 3 or not np.isfinite(array).all():
+        raise ValueError(f"expected (K, 3) positions or (K, 4, 4) poses, got shape {array.shape}")
+    return array
+
+
+@dataclass
+class MapView:
+    """What a sensor would see of the map from any position."""
+
+    surface: np.ndarray      # (M, 3) map points at the keypoints' voxel size, ground kept
+    tree: cKDTree
+    footprint: float         # their spacing [m]
+    resolution_deg: float
+    trajectory: np.ndarray   # (K, 3) the map's sensor positions, thinned; (0, 3) when unknown
+    _cache: Dict[int, Tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
+              trajectory: Optional[np.ndarray] = None) -> "MapView":
+        positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, TRAJECTORY_SPACING * voxel)
+        return cls(surface, cKDTree(surface), voxel, resolution_deg, positions)
+
+    def image(self, position: np.ndarray, reach: float) -> RangeImage:
+        """The map seen from ``position`` out to ``reach``."""
+        near = self.tree.query_ball_point(position, reach)
+        return RangeImage.build(self.surface[np.asarray(near, dtype=np.int64)], position,
+                                self.resolution_deg, self.footprint, reach)
+
+    def images(self, positions: np.ndarray, reach: float) -> List[RangeImage]:
+        """The map seen from each candidate sensor position, and from the map's own sensor
+        poses nearest to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""
+        images = [self.image(p, reach) for p in positions]
+        if len(self.trajectory):
+            tree = cKDTree(self.trajectory)
+            k = min(TRAJECTORY_VIEWS, len(self.trajectory))
+            distances, index = tree.query(positions, k=k)
+            chosen = np.unique(np.asarray(index).reshape(-1)[np.asarray(distances).reshape(-1) <= reach])
+            images += [self._trajectory_image(int(i), reach) for i in chosen]
+        return images
+
+    def _trajectory_image(self, i: int, reach: float) -> RangeImage:
+        cached = self._cache.get(i)
+        if cached is not None and cached[0] >= reach:
+            return cached[1]
+        if len(self._cache) >= MAX_CACHED_VIEWS:
+            self._cache.pop(next(iter(self._cache)))
+        image = self.image(self.trajectory[i], reach)
+        self._cache[i] = (reach, image)
+        return image

@@ -1,0 +1,98 @@
+"""The scans a robot received and its odometry: which to fuse with the newest one, and where each was.
+
+Odometry is accurate over a short stretch, so only the latest scans are fused: at most
+``scans`` of them, none older than ``max_age`` and none whose sensor was farther than
+``max_distance`` (by odometry) from the newest one's. A scan is placed by the odometry at its stamp, interpolated between the
+two messages around it, or the nearest message within ``tolerance``; a scan with no odometry near
+its stamp is not fused (it is counted, so a user sees why fewer scans were fused).
+"""
+from __future__ import annotations
+
+import bisect
+from collections import deque
+from dataclasses import dataclass
+from typing import Deque, Dict, List, Optional, Tuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from .sequence import ScanSequence
+from .visibility import ORIGIN
+
+ODOMETRY_SECONDS = 60.0  # odometry kept: more than any accumulation window
+
+
+@dataclass
+class AccumulationLimits:
+    scans: int = 1               # scans fused, the newest included (1: the scan alone)
+    max_distance: float = 10.0   # metres the sensor may have moved from the oldest fused scan
+    max_age: float = 10.0        # seconds the oldest fused scan may be older than the newest
+    tolerance: float = 0.05      # seconds between a scan and the odometry that places it
+
+
+class ScanHistory:
+    """Recent scans (stamp, points) and odometry poses (stamp, T_odom_scan), both in stamp order."""
+
+    def __init__(self, capacity: int):
+        self.scans: Deque[Tuple[float, np.ndarray]] = deque(maxlen=max(capacity, 1))
+        self._odometry_stamps: List[float] = []
+        self._odometry: List[np.ndarray] = []
+
+    def add_scan(self, stamp: float, points: np.ndarray) -> None:
+        self.scans.append((stamp, points))
+
+    def add_odometry(self, stamp: float, pose: np.ndarray) -> None:
+        """Messages may arrive out of order; ones older than ODOMETRY_SECONDS are forgotten."""
+        i = bisect.bisect(self._odometry_stamps, stamp)
+        self._odometry_stamps.insert(i, stamp)
+        self._odometry.insert(i, pose)
+        drop = bisect.bisect_left(self._odometry_stamps, self._odometry_stamps[-1] - ODOMETRY_SECONDS)
+        del self._odometry_stamps[:drop], self._odometry[:drop]
+
+    def pose_at(self, stamp: float, tolerance: float) -> Optional[np.ndarray]:
+        """T_odom_scan at ``stamp``: interpolated between the messages around it when they are at
+        most 2 x tolerance apart, else the nearest within tolerance; None when there is none."""
+        stamps = self._odometry_stamps
+        i = bisect.bisect_left(stamps, stamp)
+        if i < len(stamps) and stamps[i] == stamp:
+            return self._odometry[i]
+        if 0 < i < len(stamps) and stamps[i] - stamps[i - 1] <= 2 * tolerance:
+            a, b = self._odometry[i - 1], self._odometry[i]
+            w = (stamp - stamps[i - 1]) / (stamps[i] - stamps[i - 1])
+            pose = np.eye(4)
+            pose[:3, :3] = Slerp([0.0, 1.0], Rotation.from_matrix([a[:3, :3], b[:3, :3]]))(w).as_matrix()
+            pose[:3, 3] = (1 - w) * a[:3, 3] + w * b[:3, 3]
+            return pose
+        near = [j for j in (i - 1, i) if 0 <= j < len(stamps) and abs(stamps[j] - stamp) <= tolerance]
+        return self._odometry[min(near, key=lambda j: abs(stamps[j] - stamp))] if near else None
+
+    def sequence(self, newest: float, limits: AccumulationLimits,
+                 viewpoint=ORIGIN) -> Tuple[Optional[ScanSequence], Dict]:
+        """The scans to fuse, ending with the one stamped ``newest``, and what was decided (for
+        status). None when fewer than two scans can be fused: register the newest alone.
+        ``viewpoint``: the sensor in each scan's frame."""
+        candidates = [(s, p) for s, p in self.scans if newest - limits.max_age <= s <= newest]
+        if not candidates or candidates[-1][0] != newest:
+            return None, {"scans_fused": 1, "without_odometry": 0, "reason": "the scan is not in the history"}
+        newest_pose = self.pose_at(newest, limits.tolerance)
+        if newest_pose is None:
+            return None, {"scans_fused": 1, "without_odometry": 1,
+                          "reason": "no odometry near the newest scan's stamp: registered alone"}
+        scans, poses, without, span = [], [], 0, 0.0
+        for stamp, points in reversed(candidates):
+            if len(scans) == limits.scans:
+                break
+            pose = newest_pose if stamp == newest else self.pose_at(stamp, limits.tolerance)
+            if pose is None:
+                without += 1
+                continue
+            distance = float(np.linalg.norm(pose[:3, 3] - newest_pose[:3, 3]))
+            if distance > limits.max_distance:
+                break
+            scans.append(points)
+            poses.append(pose)
+            span = max(span, distance)
+        info = {"scans_fused": len(scans), "without_odometry": without, "span_m": round(span, 3)}
+        if len(scans) < 2:
+            return None, info
+        return ScanSequence(scans[::-1], poses[::-1], viewpoint), info
