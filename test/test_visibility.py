@@ -84,12 +84,15 @@ def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
     assert verdict.visibility.worst > 0.1   # the true pose: under 0.02
 
 
-def test_a_side_without_viewpoint_is_skipped_and_no_viewpoint_skips_the_check(rooms):
+def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_check(rooms):
     source, target, T_true = rooms
     map_like = prepare_cloud(room(seed=1), INDOOR, viewpoint=None)
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
-    one_sided = visibility_figures(wrong, source, map_like, INDOOR.acceptance)
-    assert one_sided.target_violation is None and one_sided.source_violation > 0.1
+    both = visibility_figures(wrong, source, map_like, INDOOR.acceptance)
+    # the map's side: the room seen from where the wrong pose puts the source sensor
+    assert both.source_violation > 0.1 and both.target_violation > 0.1 and both.map_seen > 0.5
+    right = visibility_figures(T_true, source, map_like, INDOOR.acceptance)
+    assert right.target_violation < INDOOR.acceptance.max_free_space_violation and right.both_sides
     blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
     unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
     assert unknown.worst is None
@@ -114,13 +117,15 @@ def test_viewpoints_are_parsed_and_checked():
         register(src, tgt, INDOOR, source_viewpoint=(0, 0))
 
 
-def test_a_map_without_viewpoint_still_registers_and_is_checked_one_sided(kitchen_pair):
+def test_a_map_without_viewpoint_still_registers_and_is_checked_from_the_scans_side(kitchen_pair):
     src, tgt, T_gt, kind = kitchen_pair
     target = prepare_cloud(tgt, INDOOR, viewpoint=None)
     result = register(src, target, INDOOR, source_viewpoint=(0, 0, 0))
     assert result.accepted, result.reason
-    assert result.visibility.target_violation is None
     assert result.visibility.source_violation is not None and result.visibility.source_violation < 0.1
+    # a fragment of a room as the map: too little of the scan lands on what it holds to count
+    assert result.visibility.map_seen < INDOOR.acceptance.map_view_min_seen
+    assert result.visibility.target_violation is None and not result.visibility.both_sides
     assert result.summary()["visibility"]["worst"] == result.visibility.source_violation
 
 
