@@ -111,12 +111,13 @@ class AcceptanceConfig:
     min_feature_inliers: int = _param(65, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms (calibrated: "
                                       "regor-calibrate-gate)", 0, 1000000)
-    min_feature_inliers_partial: int = _param(95, "the same when a viewpoint is unknown (a map, an accumulated "
-                                              "submap): visibility then checks one side or none, and wrong poses it "
+    min_feature_inliers_partial: int = _param(95, "the same when free space was checked from one side or none (a "
+                                              "viewpoint unknown and no map view: two clouds without viewpoints, or "
+                                              "too little of the scan on what the map holds): wrong poses visibility "
                                               "would reject get through on features alone (calibrated with the "
                                               "viewpoints dropped: regor-calibrate-gate)", 0, 1000000)
     max_free_space_violation: float = _param(0.06, "largest fraction of one cloud's keypoints that may sit in space the other "
-                                             "cloud's sensor saw through (free-space check; needs a viewpoint; 1 = off; "
+                                             "cloud's sensor saw through, or, for a map, in front of the map's surfaces seen from the pose (free-space check; 1 = off; "
                                              "calibrated: regor-calibrate-gate)", 0.0, 1.0)
     free_space_margin: float = _param(0.15, "a keypoint is in seen free space only when nearer than the seen surface by more "
                                       "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
