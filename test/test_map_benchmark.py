@@ -19,7 +19,8 @@ def short_sequence(root):
     source = DATA / "maps" / SEQUENCE
     folder = root / "maps" / SEQUENCE
     (folder / "queries").mkdir(parents=True)
-    (folder / "map.npy").symlink_to(source / "map.npy")
+    for name in ("map.npy", "map_trajectory.txt", "odometry.txt", "scans"):
+        (folder / name).symlink_to(source / name)
     listing = [q for q in json.loads((source / "queries.json").read_text()) if q["id"] in QUERIES]
     (folder / "queries.json").write_text(json.dumps(listing))
     for query in QUERIES:
@@ -27,24 +28,41 @@ def short_sequence(root):
     return folder
 
 
-def test_maps_mode_registers_every_query_and_writes_its_reports(tmp_path):
+def test_maps_mode_registers_every_query_alone_and_fused_and_writes_its_reports(tmp_path):
     folder = short_sequence(tmp_path)
     assert main(["--maps", str(folder.parent), "--methods", "regor,kiss-matcher", "--out", str(tmp_path / "out")]) == 0
     rows = list(csv.DictReader(open(tmp_path / "out" / "maps.csv")))
-    assert [(r["method"], r["query"]) for r in rows] == [(m, q) for m in ("regor", "kiss-matcher") for q in QUERIES]
-    regor = {r["query"]: r for r in rows if r["method"] == "regor"}
-    assert regor["scan_000005"]["success"] == "True" and regor["scan_000005"]["accepted"] == "True"
-    assert regor["scan_000039"]["accepted"] == "False"        # wrong there: not published
-    assert float(regor["scan_000005"]["map_seconds"]) > 0 and int(regor["scan_000005"]["map_keypoints"]) > 10000
-    # the gate's figures are recorded whatever the verdict: the scan's free space (the map has no viewpoint)
-    assert int(regor["scan_000005"]["feature_inliers"]) > int(regor["scan_000039"]["feature_inliers"])
-    assert float(regor["scan_000005"]["free_space_source"]) < float(regor["scan_000039"]["free_space_source"])
-    assert 0 < float(regor["scan_000005"]["seconds_matching"]) < float(regor["scan_000005"]["seconds"])
+    assert [(r["method"], r["query"].split("/")[1], r["input"]) for r in rows] == \
+        [(m, q, i) for m in ("regor", "kiss-matcher") for q in QUERIES for i in ("single", "sequence")]
+    regor = {(r["query"].split("/")[1], r["input"]): r for r in rows if r["method"] == "regor"}
+    assert regor["scan_000005", "single"]["success"] == "True" and regor["scan_000005", "single"]["accepted"] == "True"
+    assert regor["scan_000039", "single"]["accepted"] == "False"        # wrong alone: not published
+    fused = regor["scan_000039", "sequence"]                             # found with the scans before it
+    assert fused["success"] == "True" and fused["accepted"] == "True" and fused["scans"] == "5"
+    assert float(regor["scan_000005", "single"]["map_seconds"]) > 0
+    assert int(regor["scan_000005", "single"]["map_keypoints"]) > 10000
+    # the gate's figures whatever the verdict, both sides: the map is seen from the pose
+    assert float(regor["scan_000005", "single"]["map_seen"]) > 0.9
+    assert float(regor["scan_000005", "single"]["free_space_target"]) < float(regor["scan_000039", "single"]["free_space_target"])
+    assert 0 < float(regor["scan_000005", "single"]["seconds_matching"]) < float(regor["scan_000005", "single"]["seconds"])
     assert all(0.1 < float(r["peak_memory_gb"]) < 5 for r in rows)
+    assert {r["set"] for r in rows} == {"same"}   # one sequence: no other map to cross with
     report = (tmp_path / "out" / "maps.md").read_text()
-    assert f"| {SEQUENCE} | regor | 1/2 | 1 / 0 |" in report
+    assert "| regor | single | 2 | 1 | 1 / 0 |" in report and "| regor | sequence | 2 | 2 | 2 / 0 |" in report
     assert "median seconds per stage" in report
     assert (tmp_path / "out" / "maps.png").stat().st_size > 1000
+
+
+def test_the_cross_map_set_registers_each_sequence_against_the_other_maps(tmp_path):
+    """Two copies of one sequence under different names: each one's queries against the other's map."""
+    folder = short_sequence(tmp_path)
+    twin = folder.parent / "copy_of_it"
+    twin.symlink_to(folder, target_is_directory=True)
+    assert main(["--maps", str(folder.parent), "--methods", "regor", "--out", str(tmp_path / "out")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "maps.csv")))
+    cross = [r for r in rows if r["set"] == "cross"]
+    assert len(cross) == 2 * 2 * 2 and all(r["success"] == "False" for r in cross)
+    assert "## Cross-map" in (tmp_path / "out" / "maps.md").read_text()
 
 
 def test_map_scaling_tiles_the_map_and_scores_against_any_copy(tmp_path):

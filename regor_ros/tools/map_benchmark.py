@@ -198,8 +198,7 @@ def map_report(rows: List[dict], header: str) -> str:
         for (method, which), group in _groups(cross, "method", "input").items():
             lines.append(f"| {method} | {which} | {len(group)} | {_published(group)[1]} | "
                          f"{_median([r['seconds'] for r in group]):.2f} |")
-    timed = [(key, group) for key, group in _groups(same, "map", "input").items()
-             if all(f"seconds_{stage}" in r for r in group for stage in STAGES)]
+    timed = list(_groups([r for r in same if "seconds_matching" in r], "map", "input").items())
     if timed:
         lines += ["", "Regor's median seconds per stage (the scan's FPFH and the map's views are the rest):", "",
                   "| map | input | " + " | ".join(STAGES) + " |", "|---|---|" + "---|" * len(STAGES)]
