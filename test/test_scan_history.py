@@ -48,3 +48,15 @@ def test_without_odometry_for_the_newest_scan_it_is_registered_alone():
     history.add_odometry(1.0, pose(0.0))
     sequence, info = history.sequence(2.0, AccumulationLimits(scans=5, tolerance=0.1))
     assert sequence is None and info["without_odometry"] == 1 and "registered alone" in info["reason"]
+
+
+def test_the_number_of_scans_kept_follows_the_capacity_given_and_keeps_the_newest():
+    history = ScanHistory(2)
+    for i in range(3):
+        history.add_scan(float(i), scan(i))
+    assert [s for s, _ in history.scans] == [1.0, 2.0]
+    history.add_scan(3.0, scan(3), capacity=4)
+    history.add_scan(4.0, scan(4), capacity=4)
+    assert [s for s, _ in history.scans] == [1.0, 2.0, 3.0, 4.0]
+    history.add_scan(5.0, scan(5), capacity=2)
+    assert [s for s, _ in history.scans] == [4.0, 5.0]

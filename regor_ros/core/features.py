@@ -13,6 +13,7 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
+from .estimate import transform_points
 from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .visibility import RangeImage
@@ -69,9 +70,8 @@ class SeenCloud:
 
     def moved(self, T: np.ndarray) -> "SeenCloud":
         """The same cloud in another frame (``T`` maps this frame into it)."""
-        move = lambda p: p @ T[:3, :3].T + T[:3, 3]  # noqa: E731
-        return SeenCloud([move(p) for p in self.parts],
-                         None if self.viewpoints is None else move(self.viewpoints))
+        return SeenCloud([transform_points(T, p) for p in self.parts],
+                         None if self.viewpoints is None else transform_points(T, self.viewpoints))
 
 
 def clean_points(xyz, name: str = "cloud") -> np.ndarray:

@@ -54,13 +54,15 @@ class MapView:
     footprint: float         # their spacing [m]
     resolution_deg: float
     trajectory: np.ndarray   # (K, 3) the map's sensor positions, thinned; (0, 3) when unknown
+    trajectory_tree: Optional[cKDTree]  # over them; None when unknown
     _cache: Dict[int, Tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
               trajectory: Optional[np.ndarray] = None) -> "MapView":
         positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, TRAJECTORY_SPACING * voxel)
-        return cls(surface, cKDTree(surface), voxel, resolution_deg, positions)
+        return cls(surface, cKDTree(surface), voxel, resolution_deg, positions,
+                   cKDTree(positions) if len(positions) else None)
 
     def image(self, position: np.ndarray, reach: float) -> RangeImage:
         """The map seen from ``position`` out to ``reach``."""
@@ -72,10 +74,9 @@ class MapView:
         """The map seen from each candidate sensor position, and from the map's own sensor
         poses nearest to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""
         images = [self.image(p, reach) for p in positions]
-        if len(self.trajectory):
-            tree = cKDTree(self.trajectory)
+        if self.trajectory_tree is not None:
             k = min(TRAJECTORY_VIEWS, len(self.trajectory))
-            distances, index = tree.query(positions, k=k)
+            distances, index = self.trajectory_tree.query(positions, k=k)
             chosen = np.unique(np.asarray(index).reshape(-1)[np.asarray(distances).reshape(-1) <= reach])
             images += [self._trajectory_image(int(i), reach) for i in chosen]
         return images

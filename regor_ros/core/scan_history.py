@@ -38,7 +38,10 @@ class ScanHistory:
         self._odometry_stamps: List[float] = []
         self._odometry: List[np.ndarray] = []
 
-    def add_scan(self, stamp: float, points: np.ndarray) -> None:
+    def add_scan(self, stamp: float, points: np.ndarray, capacity: Optional[int] = None) -> None:
+        """Keep the scan; ``capacity`` (when given) becomes the number of scans kept from now on."""
+        if capacity is not None and capacity != self.scans.maxlen:
+            self.scans = deque(self.scans, maxlen=max(capacity, 1))
         self.scans.append((stamp, points))
 
     def add_odometry(self, stamp: float, pose: np.ndarray) -> None:

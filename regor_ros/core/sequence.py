@@ -13,6 +13,7 @@ from typing import List, Sequence
 
 import numpy as np
 
+from .estimate import transform_points
 from .features import RegistrationError, SeenCloud, check_viewpoint, clean_points
 from .visibility import ORIGIN
 
@@ -61,6 +62,6 @@ class ScanSequence:
         viewpoints = []
         for i, (scan, pose) in enumerate(zip(self.scans, poses)):
             T = newest_from_odom @ pose
-            parts.append(clean_points(scan, f"scan sequence: scan {i}") @ T[:3, :3].T + T[:3, 3])
-            viewpoints.append(T[:3, :3] @ viewpoint + T[:3, 3])
+            parts.append(transform_points(T, clean_points(scan, f"scan sequence: scan {i}")))
+            viewpoints.append(transform_points(T, viewpoint[None])[0])
         return SeenCloud(parts, np.array(viewpoints))

@@ -10,7 +10,7 @@ from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ..core import RegistrationResult
-from ..core.estimate import transform_points
+from ..core.estimate import to_matrix, transform_points
 
 INLIER_COLOUR = ColorRGBA(r=0.1, g=0.9, b=0.2, a=1.0)
 OUTLIER_COLOUR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.6)
@@ -25,13 +25,10 @@ def pose_from_matrix(T: np.ndarray) -> Pose:
     return pose
 
 
-def odometry_pose(msg) -> np.ndarray:
-    """The 4x4 pose of a nav_msgs/Odometry's child frame in its frame."""
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = (p.x, p.y, p.z)
-    return T
+def matrix_from_pose(pose: Pose) -> np.ndarray:
+    """The 4x4 transform of a geometry_msgs/Pose (the inverse of pose_from_matrix)."""
+    p, q = pose.position, pose.orientation
+    return to_matrix(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z]))
 
 
 def pose_stamped(result: RegistrationResult, header: Header) -> PoseStamped:

@@ -33,7 +33,7 @@ from ..core.scan_history import ScanHistory
 from ..core.estimate import transform_points
 from .diagnostics import Health, diagnostic_array
 from .initial_guess import search_region
-from .messages import correspondence_markers, odometry_pose, pose_stamped, pose_with_covariance, status_message
+from .messages import correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance, status_message
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 
@@ -138,7 +138,7 @@ class RegisterNode(Node):
 
     def _on_odometry(self, msg: Odometry) -> None:
         """The scan frame's pose in the odometry frame at the message's stamp."""
-        pose = odometry_pose(msg) @ self.settings.odometry_extrinsic()
+        pose = matrix_from_pose(msg.pose.pose) @ self.settings.odometry_extrinsic()
         with self._lock:
             self.stats["odometry_messages"] += 1
             self._history.add_odometry(_stamp_seconds(msg.header), pose)
@@ -167,10 +167,7 @@ class RegisterNode(Node):
             cloud = Cloud(msg.header, points, self._serials[which])
             if which == "source":
                 self._source = cloud
-                if self._history.scans.maxlen != self._history_capacity():
-                    self._history.scans = type(self._history.scans)(self._history.scans,
-                                                                     maxlen=self._history_capacity())
-                self._history.add_scan(_stamp_seconds(msg.header), points)
+                self._history.add_scan(_stamp_seconds(msg.header), points, self._history_capacity())
             else:
                 self._target = cloud
             self._lock.notify()

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core.config import CHOICES as CORE_CHOICES
 from ..core.config import PRESETS, ConfigError, RegorConfig, _param
+from ..core.estimate import to_matrix
 from ..core.scan_history import AccumulationLimits
 from ..core.visibility import ORIGIN, parse_viewpoint
 
@@ -83,10 +84,7 @@ class NodeSettings:
         if len(values) != 6 or not np.isfinite(values).all():
             raise ConfigError(f"odometry_to_scan={self.odometry_to_scan!r}: give 'x, y, z, roll, pitch, yaw' "
                               "in metres and radians")
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
-        T[:3, 3] = values[:3]
-        return T
+        return to_matrix(Rotation.from_euler("xyz", values[3:]).as_matrix(), np.array(values[:3]))
 
     def viewpoints(self):
         """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""

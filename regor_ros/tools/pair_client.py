@@ -18,12 +18,12 @@ import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
 from ..core.metrics import random_rigid_motion, rotation_error_deg, translation_error
+from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
 
 DISCOVERY_SETTLE_S = 1.0
@@ -31,11 +31,7 @@ RETRY_S = 10.0
 
 
 def pose_to_matrix(msg: PoseStamped) -> np.ndarray:
-    p, q = msg.pose.position, msg.pose.orientation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [p.x, p.y, p.z]
-    return T
+    return matrix_from_pose(msg.pose)
 
 
 class PairClient(Node):
