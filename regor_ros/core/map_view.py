@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from .visibility import RangeImage
 
 TRAJECTORY_VIEWS = 3      # nearest map sensor poses whose views are used for one candidate
-TRAJECTORY_SPACING = 5.0  # in voxels: poses closer than this to a kept one see about the same
+VIEW_SPACING = 5.0        # in voxels: sensor positions closer than this to a kept one see about the same
 MAX_CACHED_VIEWS = 256    # trajectory views kept (about 0.26 MB each at 1 deg)
 
 
@@ -60,7 +60,7 @@ class MapView:
     @classmethod
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
               trajectory: Optional[np.ndarray] = None) -> "MapView":
-        positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, TRAJECTORY_SPACING * voxel)
+        positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, VIEW_SPACING * voxel)
         return cls(surface, cKDTree(surface), voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)
 
@@ -71,9 +71,10 @@ class MapView:
                                 self.resolution_deg, self.footprint, reach)
 
     def images(self, positions: np.ndarray, reach: float) -> List[RangeImage]:
-        """The map seen from each candidate sensor position, and from the map's own sensor
-        poses nearest to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""
-        images = [self.image(p, reach) for p in positions]
+        """The map seen from the candidate sensor positions (thinned as the trajectory is: scans
+        fused along a slow walk see about the same), and from the map's own sensor poses nearest
+        to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""
+        images = [self.image(p, reach) for p in thinned(positions, VIEW_SPACING * self.footprint)]
         if self.trajectory_tree is not None:
             k = min(TRAJECTORY_VIEWS, len(self.trajectory))
             distances, index = self.trajectory_tree.query(positions, k=k)
