@@ -13,13 +13,13 @@ TIMEOUT = 90.0
 class NodeProcess:
     """The installed executable, started through the install space's setup script."""
 
-    def __init__(self, install: Path, *ros_args: str):
+    def __init__(self, install: Path, *ros_args: str, env=None):
         exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
         assert exe.exists(), "colcon did not install lib/regor_ros/register_node"
         command = f"source {install}/setup.bash && exec {exe} --ros-args {' '.join(ros_args)}"
         self.log = open(install.parent / f"node-{time.monotonic_ns()}.log", "w+")
         self.proc = subprocess.Popen(["bash", "-c", command], stdout=self.log,
-                                     stderr=subprocess.STDOUT)
+                                     stderr=subprocess.STDOUT, env=env)
 
     def output(self) -> str:
         self.log.flush()

@@ -1,7 +1,10 @@
 import numpy as np
 
-from regor_ros.core.estimate import (pose_covariance, point_refine, post_refine, transform_points,
-                                     weighted_kabsch)
+import pytest
+from scipy.spatial.transform import Rotation
+
+from regor_ros.core.estimate import (attached_pose, point_refine, pose_covariance, post_refine, to_matrix,
+                                     transform_points, weighted_kabsch)
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 
 from conftest import random_motion
@@ -81,8 +84,8 @@ def test_covariance_is_symmetric_positive_definite_and_shrinks_with_noise():
     tgt = transform_points(T, src)
     normals = normals @ T[:3, :3].T
     noise = np.random.default_rng(8).normal(size=(500, 3))
-    loose = pose_covariance(T, src, tgt + 0.05 * noise, normals)
-    tight = pose_covariance(T, src, tgt + 0.005 * noise, normals)
+    loose = pose_covariance(T, src, tgt + 0.05 * noise, normals, 0.05)
+    tight = pose_covariance(T, src, tgt + 0.005 * noise, normals, 0.05)
     assert np.allclose(loose, loose.T)
     assert np.all(np.linalg.eigvalsh(loose) > 0)
     assert np.all(np.diag(tight) < np.diag(loose))
@@ -93,7 +96,7 @@ def test_covariance_of_a_plane_leaves_sliding_unconstrained():
     rng = np.random.default_rng(9)
     src = np.c_[rng.uniform(-1, 1, size=(400, 2)), np.zeros(400)]
     normals = np.tile([0.0, 0.0, 1.0], (400, 1))
-    cov = pose_covariance(np.eye(4), src, src + rng.normal(scale=0.001, size=src.shape), normals)
+    cov = pose_covariance(np.eye(4), src, src + rng.normal(scale=0.001, size=src.shape), normals, 0.05)
     assert cov[0, 0] >= 1e6 and cov[1, 1] >= 1e6 and cov[5, 5] >= 1e6   # x, y, yaw slide freely
     assert cov[2, 2] < 1.0 and cov[3, 3] < 1.0 and cov[4, 4] < 1.0      # z, roll, pitch are fixed
 
@@ -105,9 +108,30 @@ def test_covariance_does_not_depend_on_where_the_target_origin_is():
     T = random_motion(11)
     tgt = transform_points(T, src) + np.random.default_rng(12).normal(scale=0.01, size=src.shape)
     normals = normals @ T[:3, :3].T
-    near = pose_covariance(T, src, tgt, normals)
+    near = pose_covariance(T, src, tgt, normals, 0.05)
     far_T = T.copy()
     far_T[:3, 3] += [1000.0, -800.0, 20.0]
-    far = pose_covariance(far_T, src, tgt + far_T[:3, 3] - T[:3, 3], normals)
+    far = pose_covariance(far_T, src, tgt + far_T[:3, 3] - T[:3, 3], normals, 0.05)
     np.testing.assert_allclose(far, near, rtol=1e-4, atol=1e-12)
     assert np.linalg.eigvalsh(far).max() < 1.0
+
+
+def test_covariance_is_never_finer_than_the_voxel_grid():
+    """A perfect fit of thousands of keypoints still knows the position only to its voxels."""
+    src, normals = ellipsoid(2000, 13)
+    cov = pose_covariance(np.eye(4), src, src, normals, 0.3)
+    assert np.all(np.diag(cov)[:3] >= 0.3 ** 2 / 12 * 0.999)
+    assert np.all(np.diag(cov)[3:] > 0) and np.diag(cov).max() < 1.0
+
+
+def test_attached_pose_moves_with_the_lever_arm():
+    """The base 1 m behind the sensor: the sensor's yaw uncertainty becomes sideways uncertainty."""
+    T = to_matrix(Rotation.from_euler("z", 90, degrees=True).as_matrix(), np.array([5.0, 2.0, 0.0]))
+    sensor_to_base = to_matrix(np.eye(3), np.array([-1.0, 0.0, 0.0]))
+    covariance = np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 0.04])
+    base, moved = attached_pose(T, covariance, sensor_to_base)
+    np.testing.assert_allclose(base[:3, 3], [5.0, 1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(base[:3, :3], T[:3, :3])
+    assert moved[0, 0] == pytest.approx(0.01 + 0.04)   # the base swings along x when the sensor yaws
+    assert moved[1, 1] == pytest.approx(0.01) and moved[5, 5] == pytest.approx(0.04)
+    assert moved[0, 5] == pytest.approx(0.04) and np.allclose(moved, moved.T)

@@ -107,7 +107,10 @@ class FeatureIndex:
     ``nearest_probes`` for a nearest neighbour alone (the first is found in fewer cells than the
     hundredth; by cell, ``CellTable``)."""
 
-    def __init__(self, features: np.ndarray, exact_limit: int, probes: int, nearest_probes: int):
+    def __init__(self, features: np.ndarray, exact_limit: int, probes: int, nearest_probes: int,
+                 saved: Optional[np.ndarray] = None):
+        """``saved``: what ``saved()`` returned for these features and limits (a cached map's
+        trained inverted file, restored instead of trained again)."""
         features = np.ascontiguousarray(features, dtype=np.float32)
         n, dim = features.shape
         self.size = n
@@ -118,6 +121,11 @@ class FeatureIndex:
         self._cells: Optional[CellTable] = None
         if self.exact:
             self._index = faiss.IndexFlatIP(dim)
+        elif saved is not None and len(saved):
+            self._index = faiss.deserialize_index(np.ascontiguousarray(saved, dtype=np.uint8))
+            if self._index.ntotal != n or self._index.d != dim:
+                raise ValueError(f"the saved index holds {self._index.ntotal} rows of {self._index.d}, "
+                                 f"not {n} of {dim}")
         else:
             cells = max(1, min(int(round(CELLS_PER_SQRT * np.sqrt(n))), n // MIN_ROWS_PER_CELL))
             self._index = faiss.IndexIVFFlat(faiss.IndexFlatIP(dim), dim, cells,
@@ -126,12 +134,17 @@ class FeatureIndex:
             sample = min(n, TRAINING_PER_CELL * cells)
             rows = np.random.default_rng(KMEANS_SEED).choice(n, sample, replace=False) if sample < n else slice(None)
             self._index.train(features[rows])
-        self._index.add(features)
+        if self._index.ntotal == 0:
+            self._index.add(features)
         if not self.exact:
             self._cells = CellTable.of(self._index, features)
 
     def __len__(self) -> int:
         return self.size
+
+    def saved(self) -> np.ndarray:
+        """The trained inverted file as bytes (empty for an exact index: rebuilt in no time)."""
+        return np.zeros(0, np.uint8) if self.exact else faiss.serialize_index(self._index)
 
     def restricted(self, rows: np.ndarray, features: np.ndarray) -> "FeatureIndex":
         """An index over ``rows`` (sorted) of this one, whose results are positions in ``rows``;

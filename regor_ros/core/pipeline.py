@@ -278,7 +278,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
-    covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index])
+    covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index],
+                                 config.features.voxel_size)
     lap("estimation")
 
     num_inliers = len(final_src)

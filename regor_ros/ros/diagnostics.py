@@ -25,6 +25,7 @@ class Health:
     last_summary: Optional[dict] = None    # RegistrationResult.summary() of the last registration
     counters: Dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
     map_info: Dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
+    inputs: Dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
 
 
 def _value(v) -> str:
@@ -48,7 +49,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
-    values = {**health.counters, **health.map_info}
+    values = {**health.counters, **health.inputs, **health.map_info}
     if summary is not None:
         visibility = summary["visibility"]
         values.update({

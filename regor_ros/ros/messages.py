@@ -31,14 +31,14 @@ def matrix_from_pose(pose: Pose) -> np.ndarray:
     return to_matrix(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z]))
 
 
-def pose_stamped(result: RegistrationResult, header: Header) -> PoseStamped:
-    return PoseStamped(header=header, pose=pose_from_matrix(result.transform))
+def pose_stamped(T: np.ndarray, header: Header) -> PoseStamped:
+    return PoseStamped(header=header, pose=pose_from_matrix(T))
 
 
-def pose_with_covariance(result: RegistrationResult, header: Header) -> PoseWithCovarianceStamped:
+def pose_with_covariance(T: np.ndarray, covariance: np.ndarray, header: Header) -> PoseWithCovarianceStamped:
     msg = PoseWithCovarianceStamped(header=header)
-    msg.pose.pose = pose_from_matrix(result.transform)
-    msg.pose.covariance = [float(v) for v in result.covariance.reshape(-1)]
+    msg.pose.pose = pose_from_matrix(T)
+    msg.pose.covariance = [float(v) for v in covariance.reshape(-1)]
     return msg
 
 

@@ -11,42 +11,38 @@ import re
 import threading
 import time
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Tuple
 
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
+from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
 from ..core.scan_history import ScanHistory
-from ..core.estimate import transform_points
+from ..core.estimate import attached_pose, transform_points
 from .diagnostics import Health, diagnostic_array
 from .initial_guess import search_region
+from .input_qos import InputSubscription, fixed_profile
 from .messages import correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance, status_message
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
+from .transport import use_large_data_profile
+from ..tools.map_file import load_map_file
 
 WARN_THROTTLE_S = 5.0
-
-
-def qos_profile(kind: str) -> QoSProfile:
-    if kind == "sensor_data":
-        return qos_profile_sensor_data
-    durability = (DurabilityPolicy.TRANSIENT_LOCAL if kind == "transient_local"
-                  else DurabilityPolicy.VOLATILE)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                      reliability=ReliabilityPolicy.RELIABLE, durability=durability)
+QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
 
 
 @dataclass
@@ -72,8 +68,11 @@ class RegisterNode(Node):
         self._serials = {"source": 0, "target": 0}
         self._done = {"source": 0, "target": 0}   # serials last registered
         self._prepared_target: Optional[PreparedCloud] = None
-        self._prepared_key = None  # (target serial, viewpoint, feature settings) of the cached map
+        self._prepared_key = None  # what the prepared map was made from (_map_key)
+        self._map_frame = ""       # and the frame it is in
         self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
+        self._relocalize_after: Optional[int] = None  # a relocalize call waits for a source after this serial
+        self._answer = (0, False, "")  # (source serial, accepted, what happened) of the last registration
         self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
         self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
                       "accepted_poses": 0,
@@ -82,21 +81,28 @@ class RegisterNode(Node):
         self._warned = {}  # kind of bad input -> when it was last logged
         self.health = Health(counters=self.stats)
 
-        self.create_subscription(PointCloud2, "source_cloud", self._on_source,
-                                 qos_profile(self.settings.source_qos))
-        self.create_subscription(PointCloud2, "target_cloud", self._on_target,
-                                 qos_profile(self.settings.target_qos))
+        self.inputs = {"source": InputSubscription(self, PointCloud2, "source_cloud", self._on_source,
+                                                   self.settings.source_qos)}
+        if not self.settings.map_file:  # else the map is a file
+            self.inputs["target"] = InputSubscription(self, PointCloud2, "target_cloud", self._on_target,
+                                                      self.settings.target_qos)
+        self._follow_publishers()
+        self.create_timer(QOS_CHECK_PERIOD_S, self._follow_publishers)
         self.create_subscription(PoseWithCovarianceStamped, "initial_guess", self._on_initial_guess,
-                                 qos_profile("reliable"))
+                                 fixed_profile("reliable"))
         # best effort accepts reliable and best-effort publishers alike; a deep queue for 100 Hz odometry
         self.create_subscription(Odometry, "odometry", self._on_odometry,
                                  QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                             reliability=ReliabilityPolicy.BEST_EFFORT))
+        # its own callback group: a call waits for a registration while scans keep arriving
+        self.create_service(Trigger, "~/relocalize", self._on_relocalize,
+                            callback_group=MutuallyExclusiveCallbackGroup())
         self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
         self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
         self.status_pub = self.create_publisher(String, "status", 10)
         self.aligned_pub = self.create_publisher(PointCloud2, "aligned_cloud", 1)
+        self.map_pub = self.create_publisher(PointCloud2, "map_cloud", fixed_profile("transient_local"))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if self.settings.diagnostics_period > 0:
             self.create_timer(self.settings.diagnostics_period, self._publish_diagnostics)
@@ -104,8 +110,8 @@ class RegisterNode(Node):
         self._worker.start()
         self.get_logger().info(
             f"ready: mode={self.settings.mode}, voxel={self.config.features.voxel_size} m; "
-            f"listening on {self.resolve_topic_name('source_cloud')} and "
-            f"{self.resolve_topic_name('target_cloud')}")
+            f"listening on {self.resolve_topic_name('source_cloud')}; the target from "
+            f"{self.settings.map_file or self.resolve_topic_name('target_cloud')}")
 
     # --- parameters ---
 
@@ -117,6 +123,11 @@ class RegisterNode(Node):
         except ConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def _follow_publishers(self) -> None:
+        for which, subscription in self.inputs.items():
+            subscription.update()
+            self.health.inputs[f"{which}_qos"] = subscription.state()
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
@@ -146,10 +157,27 @@ class RegisterNode(Node):
     def _on_initial_guess(self, msg: PoseWithCovarianceStamped) -> None:
         with self._lock:
             self._hint = msg
-            self._lock.notify()
+            self._lock.notify_all()
         self.get_logger().info(
             f"initial guess received: ({msg.pose.pose.position.x:.1f}, {msg.pose.pose.position.y:.1f}, "
             f"{msg.pose.pose.position.z:.1f}) in '{msg.header.frame_id}'; in force until a pose is accepted")
+
+    def _on_relocalize(self, request, response):
+        """Answer with the registration of the next source: its verdict and the reason."""
+        with self._lock:
+            after = self._serials["source"]
+            self._relocalize_after = after
+            self._lock.notify_all()
+            answered = self._lock.wait_for(lambda: self._answer[0] > after or self._stopping,
+                                           self.settings.relocalize_timeout)
+            self._relocalize_after = None
+            _, response.success, response.message = self._answer
+        if not answered:
+            response.success = False
+            waiting = ("no map yet" if self.settings.mode == "map" and self._prepared_target is None
+                       else "no source cloud arrived")
+            response.message = f"{waiting} within relocalize_timeout={self.settings.relocalize_timeout:g} s"
+        return response
 
     def _store(self, which: str, msg: PointCloud2) -> None:
         try:
@@ -170,7 +198,7 @@ class RegisterNode(Node):
                 self._history.add_scan(_stamp_seconds(msg.header), points, self._history_capacity())
             else:
                 self._target = cloud
-            self._lock.notify()
+            self._lock.notify_all()
 
     def _bad_input(self, text: str) -> None:
         """Count and warn, at most once per WARN_THROTTLE_S for each kind of problem (the text
@@ -188,27 +216,37 @@ class RegisterNode(Node):
     # --- the worker ---
 
     def _ready(self):
-        """The (source, target) to register now, or None."""
+        """The (source, target) to register now, or None; in map mode the target is the prepared
+        map (None when it came from a file)."""
         src, tgt = self._source, self._target
-        if src is None or tgt is None or src.serial == self._done["source"]:
+        if src is None or src.serial == self._done["source"]:
             return None
-        if self.settings.mode == "pairs":
-            if tgt.serial == self._done["target"]:
-                return None
-            tolerance = self.settings.max_stamp_difference
-            if tolerance and abs(_stamp_seconds(src.header) - _stamp_seconds(tgt.header)) > tolerance:
-                return None
+        if self.settings.registration == "on_demand" and (
+                self._relocalize_after is None or src.serial <= self._relocalize_after):
+            return None
+        if self.settings.mode == "map":
+            return (src, tgt) if self._prepared_target is not None else None
+        if tgt is None or tgt.serial == self._done["target"]:
+            return None
+        tolerance = self.settings.max_stamp_difference
+        if tolerance and abs(_stamp_seconds(src.header) - _stamp_seconds(tgt.header)) > tolerance:
+            return None
         return src, tgt
 
-    def _map_key(self, tgt: Cloud, config, settings):
-        return tgt.serial, settings.viewpoints()[1], config.features
+    def _map_key(self, config, settings):
+        """What the map must be prepared from now: the file, or the newest target message (with
+        the target viewpoint), and the feature settings; None while there is no map."""
+        if settings.map_file:
+            return "file", settings.map_file, settings.map_trajectory_file, config.features
+        tgt = self._target
+        return None if tgt is None else ("topic", tgt.serial, settings.viewpoints()[1], config.features)
 
     def _next_job(self):
-        """What the worker does next: ("prepare", map), ("register", source, target) or None."""
-        tgt = self._target
-        if self.settings.mode == "map" and tgt is not None and \
-                self._prepared_key != self._map_key(tgt, self.config, self.settings):
-            return "prepare", tgt
+        """What the worker does next: ("prepare", map key, target), ("register", source, target) or None."""
+        if self.settings.mode == "map":
+            key = self._map_key(self.config, self.settings)
+            if key is not None and key != self._prepared_key:
+                return "prepare", key, self._target
         ready = self._ready()
         return None if ready is None else ("register", *ready)
 
@@ -224,47 +262,65 @@ class RegisterNode(Node):
                 config, settings, hint = self.config, self.settings, self._hint
                 if job[0] == "register":
                     src, tgt = job[1], job[2]
-                    self._done["source"], self._done["target"] = src.serial, tgt.serial
+                    self._done["source"] = src.serial
+                    if tgt is not None:
+                        self._done["target"] = tgt.serial
             if job[0] == "prepare":
-                self._prepare_map(job[1], config, settings)
+                self._prepare_map(job[1], job[2], config, settings)
             else:
-                self._register(src, tgt, config, settings, hint)
+                accepted, what = self._register(src, tgt, config, settings, hint)
+                with self._lock:
+                    self._answer = (src.serial, accepted, what)
+                    self._lock.notify_all()
 
-    def _prepare_map(self, tgt: Cloud, config, settings) -> None:
-        """Prepare the map once per message (and feature settings); queries wait meanwhile."""
-        key = self._map_key(tgt, config, settings)
+    def _prepare_map(self, key, tgt: Optional[Cloud], config, settings) -> None:
+        """Prepare the map once per message or file (and feature settings); queries wait meanwhile."""
         self.health.preparing_map = True
         start = time.perf_counter()
+        info = {}
         try:
-            prepared = prepare_cloud(tgt.points, config, "target", viewpoint=key[1])
+            if settings.map_file:
+                loaded = load_map_file(settings.map_file, config, settings.map_trajectory_file,
+                                       settings.map_cache, settings.map_cache_dir,
+                                       warn=self.get_logger().warning)
+                prepared, info, frame = loaded.prepared, loaded.info, settings.map_frame
+            else:
+                prepared = prepare_cloud(tgt.points, config, "target", viewpoint=key[2])
+                frame = tgt.header.frame_id
         except RegistrationError as exc:
-            prepared = None
+            prepared, frame = None, ""
             self.health.last_error = f"map not usable: {exc}"
             self._bad_input(f"map skipped: {exc}")
         finally:
             self.health.preparing_map = False
         seconds = time.perf_counter() - start
         with self._lock:
-            self._prepared_target, self._prepared_key = prepared, key
+            self._prepared_target, self._prepared_key, self._map_frame = prepared, key, frame
             if prepared is not None:
                 self.stats["map_preparations"] += 1
                 self.health.map_info = {
                     "map_points": prepared.input_size, "map_keypoints": len(prepared),
-                    "map_exact_search": prepared.index.exact, "map_preparation_seconds": round(seconds, 3)}
-        if prepared is not None:
-            self.get_logger().info(f"map prepared: {prepared.input_size} points, {len(prepared)} keypoints "
-                                   f"in {seconds:.1f} s")
+                    "map_exact_search": prepared.index.exact, **info,
+                    "map_preparation_seconds": round(seconds, 3)}
+        if prepared is None:
+            return
+        cache = f", cache {info['map_cache']}" if info.get("map_cache") else ""
+        self.get_logger().info(f"map prepared: {prepared.input_size} points, {len(prepared)} keypoints "
+                               f"in {seconds:.1f} s{cache}")
+        if settings.map_file:  # for RViz: the map as the node uses it (downsampled, ground kept)
+            self.map_pub.publish(xyz_to_cloud(prepared.map_view.surface,
+                                              Header(stamp=self.get_clock().now().to_msg(), frame_id=frame)))
 
-    def _search_region(self, hint: Optional[PoseWithCovarianceStamped], tgt: Cloud, settings):
+    def _search_region(self, hint: Optional[PoseWithCovarianceStamped], target_frame: str, settings):
         """The hint as a search region, or None; a hint in another frame is dropped with a warning."""
         if hint is None:
             return None
-        if hint.header.frame_id and hint.header.frame_id != tgt.header.frame_id:
+        if hint.header.frame_id and hint.header.frame_id != target_frame:
             with self._lock:
                 if self._hint is hint:
                     self._hint = None
             self._bad_input(f"initial_guess dropped: it is in '{hint.header.frame_id}', the target "
-                            f"cloud in '{tgt.header.frame_id}' (this node does not look up tf)")
+                            f"cloud in '{target_frame}' (this node does not look up tf)")
             return None
         return search_region(hint, settings.initial_guess_sigmas, settings.initial_guess_min_radius,
                              settings.initial_guess_max_radius)
@@ -280,15 +336,17 @@ class RegisterNode(Node):
                                                     settings.viewpoints()[0])
         return (src.points if sequence is None else sequence), info
 
-    def _register(self, src: Cloud, tgt: Cloud, config, settings, hint) -> None:
+    def _register(self, src: Cloud, tgt: Optional[Cloud], config, settings, hint) -> Tuple[bool, str]:
+        """Register the source against the pair's target or (map mode) the prepared map; (pose
+        accepted, what happened)."""
         source_viewpoint, target_viewpoint = settings.viewpoints()
-        target = tgt.points
         if settings.mode == "map":
-            target = self._prepared_target
-            if target is None:  # the map could not be prepared: said when it was tried
-                return
+            with self._lock:
+                target, target_frame = self._prepared_target, self._map_frame
+        else:
+            target, target_frame = tgt.points, tgt.header.frame_id
         try:
-            region = self._search_region(hint, tgt, settings)
+            region = self._search_region(hint, target_frame, settings)
             source, accumulation = self._source_input(src, settings)
             if source is src.points:
                 result = register(source, target, config, source_viewpoint=source_viewpoint,
@@ -299,11 +357,11 @@ class RegisterNode(Node):
         except RegistrationError as exc:
             self.health.last_error = str(exc)
             self._bad_input(f"registration skipped: {exc}")
-            return
+            return False, f"registration skipped: {exc}"
         except Exception as exc:  # keep the node alive whatever the input did
             self.health.last_error = f"{type(exc).__name__}: {exc}"
             self.get_logger().error(f"registration failed: {type(exc).__name__}: {exc}")
-            return
+            return False, f"registration failed: {type(exc).__name__}: {exc}"
         with self._lock:
             self.stats["registrations"] += 1
             self.stats["accepted_poses"] += int(result.accepted)
@@ -311,12 +369,13 @@ class RegisterNode(Node):
             self.health.last_summary = result.summary()
             if result.accepted and region is not None and self._hint is hint:
                 self._hint = None  # the robot is found: the hint has done its job
-            extra = {"source_frame": src.header.frame_id, "target_frame": tgt.header.frame_id,
-                     "mode": settings.mode, **self.stats, "accumulation": accumulation,
+            extra = {"source_stamp": _stamp_seconds(src.header), "source_frame": src.header.frame_id, "target_frame": target_frame,
+                     "pose_of": settings.base_frame or src.header.frame_id,
+                     "mode": settings.mode, **self.stats, **self.health.inputs, "accumulation": accumulation,
                      **(self.health.map_info if settings.mode == "map" else {}),
                      "search_region": None if region is None else {
                          "centre": [float(v) for v in region.centre], "radius": region.radius}}
-        header = Header(stamp=src.header.stamp, frame_id=tgt.header.frame_id)
+        header = Header(stamp=src.header.stamp, frame_id=target_frame)
         self.status_pub.publish(status_message(result, extra))
         self.marker_pub.publish(correspondence_markers(result, header, settings.max_markers,
                                                        settings.marker_line_width))
@@ -325,30 +384,39 @@ class RegisterNode(Node):
         if not result.accepted:
             self.get_logger().warning(f"pose rejected: {result.reason} ({figures})")
             if not settings.publish_rejected:
-                return
+                return False, f"pose withheld: {result.reason}"
         else:
             self.get_logger().info(f"pose accepted: {figures}")
-        self.pose_pub.publish(pose_stamped(result, header))
-        self.pose_cov_pub.publish(pose_with_covariance(result, header))
+        T, covariance = result.transform, result.covariance
+        if settings.base_frame:  # the robot's pose, for Nav2: the sensor's composed with its mounting
+            T, covariance = attached_pose(T, covariance, np.linalg.inv(settings.base_extrinsic()))
+        self.pose_pub.publish(pose_stamped(T, header))
+        self.pose_cov_pub.publish(pose_with_covariance(T, covariance, header))
         if settings.publish_aligned_cloud:
             self.aligned_pub.publish(xyz_to_cloud(transform_points(result.transform, src.points), header))
+        return result.accepted, (f"pose published ({figures})" if result.accepted
+                                 else f"pose published although rejected: {result.reason}")
 
     def stop(self) -> None:
         with self._lock:
             self._stopping = True
-            self._lock.notify()
+            self._lock.notify_all()
 
 
 def main(args=None) -> int:
+    profile = use_large_data_profile()
     rclpy.init(args=args)
     try:
         node = RegisterNode()
+        if profile:
+            node.get_logger().info(f"Fast DDS large-data transports: {profile} (set FASTDDS_DEFAULT_PROFILES_FILE "
+                                   "to use your own)")
     except (ConfigError, ParameterException) as exc:
         print(f"register_node: invalid parameter: {exc}", flush=True)
         rclpy.try_shutdown()
         return 1
     try:
-        rclpy.spin(node)
+        rclpy.spin(node, MultiThreadedExecutor(num_threads=2))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

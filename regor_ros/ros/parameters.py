@@ -18,9 +18,10 @@ from ..core.config import PRESETS, ConfigError, RegorConfig, _param
 from ..core.estimate import to_matrix
 from ..core.scan_history import AccumulationLimits
 from ..core.visibility import ORIGIN, parse_viewpoint
+from .input_qos import QOS_KINDS
 
-QOS_CHOICES = ("sensor_data", "reliable", "transient_local")
 MODE_CHOICES = ("pairs", "map")
+REGISTRATION_CHOICES = ("continuous", "on_demand")
 
 
 @dataclass
@@ -29,12 +30,17 @@ class NodeSettings:
 
     mode: str = _param("pairs", "pairs: register each new source/target pair; map: the latest target "
                        "is a map prepared once, every new source is registered against it")
+    registration: str = _param("continuous", "continuous: register every new source; on_demand: only the next "
+                               "source after a call of the relocalize service (std_srvs/Trigger)")
+    relocalize_timeout: float = _param(10.0, "how long a relocalize call waits for the next source and its "
+                                       "registration [s]", 0.1, 3600.0)
     max_stamp_difference: float = _param(0.0, "pairs mode: register only clouds whose stamps differ "
                                          "by at most this [s]; 0 = any", 0.0, 1e6)
-    source_qos: str = _param("sensor_data", "QoS of source_cloud: sensor_data (best effort), "
-                             "reliable, or transient_local (latched)")
-    target_qos: str = _param("transient_local", "QoS of target_cloud: sensor_data, reliable, or "
-                             "transient_local (a map published once)")
+    source_qos: str = _param("auto", "QoS of source_cloud: auto (reliable when every publisher is, transient "
+                             "local when every publisher is, best effort otherwise; followed as publishers "
+                             "come and go), sensor_data (best effort), reliable, or transient_local (latched)")
+    target_qos: str = _param("auto", "QoS of target_cloud: auto, sensor_data, reliable, or transient_local "
+                             "(see source_qos)")
     max_markers: int = _param(500, "most correspondence lines published on correspondences", 0, 100000)
     marker_line_width: float = _param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
     publish_aligned_cloud: bool = _param(False, "publish the source cloud moved into the target frame "
@@ -49,6 +55,20 @@ class NodeSettings:
     target_viewpoint: str = _param("auto", "where the target sensor sat in the target message's frame: "
                                    "'x, y, z' [m], 'none', or auto (the frame's origin in pairs mode; none "
                                    "in map mode, a map has no single viewpoint)")
+
+    map_file: str = _param("", "map mode: the map as a file (.pcd, .ply, .npy, .xyz/.txt, KITTI .bin), loaded at "
+                           "start instead of target_cloud and published once on map_cloud; '' = the map comes "
+                           "on target_cloud (read only)")
+    map_frame: str = _param("map", "frame of the map_file's points: the frame the poses are published in (read only)")
+    map_trajectory_file: str = _param("", "the sensor poses the map_file was built from, TUM format (t x y z qx qy "
+                                      "qz qw, as SLAM packages save it): the free-space check also sees the map "
+                                      "from them; '' = none (read only)")
+    map_cache: bool = _param(True, "keep the prepared map_file in a cache file (beside the map, or in "
+                             "map_cache_dir) and load it at the next start when map, trajectory and feature "
+                             "settings are unchanged; a stale or unreadable cache is rebuilt (read only)")
+    map_cache_dir: str = _param("", "folder for the map cache; '' = beside the map file, or "
+                                "$XDG_CACHE_HOME/regor_ros (~/.cache/regor_ros) when that folder is not "
+                                "writable (read only)")
 
     initial_guess_sigmas: float = _param(3.0, "an initial_guess restricts the search to this many standard deviations of "
                                          "its position covariance around it", 0.0, 100.0)
@@ -69,6 +89,12 @@ class NodeSettings:
                                    "child frame: 'x, y, z, roll, pitch, yaw' [m, rad] (identity when the "
                                    "odometry is the sensor's own)")
 
+    base_frame: str = _param("", "the robot's base frame: pose and pose_with_covariance give its pose (Nav2's "
+                             "/initialpose wants it) instead of the source frame's; '' = the source frame's")
+    base_to_sensor: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the source cloud's frame in base_frame: "
+                                 "'x, y, z, roll, pitch, yaw' [m, rad] (the sensor's mounting; this node does "
+                                 "not look up tf)")
+
     def accumulation(self) -> AccumulationLimits:
         """How many scans to fuse and how far back, with the auto default resolved."""
         scans = self.accumulate_scans or (5 if self.mode == "map" else 1)
@@ -77,14 +103,11 @@ class NodeSettings:
 
     def odometry_extrinsic(self) -> np.ndarray:
         """T_child_scan from odometry_to_scan; ConfigError when malformed."""
-        try:
-            values = [float(v) for v in self.odometry_to_scan.replace(",", " ").split()]
-        except ValueError:
-            values = []
-        if len(values) != 6 or not np.isfinite(values).all():
-            raise ConfigError(f"odometry_to_scan={self.odometry_to_scan!r}: give 'x, y, z, roll, pitch, yaw' "
-                              "in metres and radians")
-        return to_matrix(Rotation.from_euler("xyz", values[3:]).as_matrix(), np.array(values[:3]))
+        return parse_pose(self.odometry_to_scan, "odometry_to_scan")
+
+    def base_extrinsic(self) -> np.ndarray:
+        """T_base_sensor from base_to_sensor; ConfigError when malformed."""
+        return parse_pose(self.base_to_sensor, "base_to_sensor")
 
     def viewpoints(self):
         """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""
@@ -93,9 +116,22 @@ class NodeSettings:
                                 None if self.mode == "map" else ORIGIN))
 
 
-CHOICES = {"mode": MODE_CHOICES, "source_qos": QOS_CHOICES, "target_qos": QOS_CHOICES,
+def parse_pose(text: str, name: str) -> np.ndarray:
+    """4x4 transform of 'x, y, z, roll, pitch, yaw' (metres, radians, fixed-axis roll-pitch-yaw as
+    tf2 and URDF use it); ConfigError when malformed."""
+    try:
+        values = [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        values = []
+    if len(values) != 6 or not np.isfinite(values).all():
+        raise ConfigError(f"{name}={text!r}: give 'x, y, z, roll, pitch, yaw' in metres and radians")
+    return to_matrix(Rotation.from_euler("xyz", values[3:]).as_matrix(), np.array(values[:3]))
+
+
+CHOICES = {"mode": MODE_CHOICES, "registration": REGISTRATION_CHOICES, "source_qos": QOS_KINDS, "target_qos": QOS_KINDS,
            "preset": PRESETS, **CORE_CHOICES}
-READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period"}
+READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period", "map_file", "map_frame",
+             "map_trajectory_file", "map_cache", "map_cache_dir"}
 
 
 def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescriptor:
@@ -147,6 +183,9 @@ def make_settings(values: Dict) -> NodeSettings:
             raise ConfigError(f"{f.name}={value!r} is outside its valid range [{low}, {high}]")
     settings.viewpoints()  # raises on a malformed viewpoint
     settings.odometry_extrinsic()  # and on a malformed extrinsic
+    settings.base_extrinsic()
+    if settings.map_file and settings.mode != "map":
+        raise ConfigError(f"map_file={settings.map_file!r} is for mode=map (a pair's target comes on target_cloud)")
     if settings.initial_guess_min_radius > settings.initial_guess_max_radius:
         raise ConfigError("initial_guess_min_radius is larger than initial_guess_max_radius")
     return settings

@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core import RegorConfig, ScanSequence, prepare_cloud, register
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
+from .map_file import read_trajectory
 from .benchmark import STAGES, gate_columns, write_results
 
 MAP_METHODS = ("regor", "kiss-matcher")
@@ -49,14 +49,9 @@ def _peak_gb() -> float:
 
 
 def load_poses(path: Path) -> Dict[int, np.ndarray]:
-    """``k tx ty tz qx qy qz qw`` lines (TUM order, Hamilton quaternion) as {k: 4x4}."""
-    poses = {}
-    for line in path.read_text().splitlines():
-        if line.strip() and not line.startswith("#"):
-            k, *v = line.split()
-            poses[int(k)] = to_matrix(Rotation.from_quat([float(x) for x in v[3:7]]).as_matrix(),
-                                      np.array([float(x) for x in v[:3]]))
-    return poses
+    """A TUM file whose first column numbers the scans, as {scan number: 4x4}."""
+    stamps, poses = read_trajectory(path)
+    return {int(k): T for k, T in zip(stamps, poses)}
 
 
 @dataclass

@@ -1,0 +1,112 @@
+"""A robot's map from files: the cloud, the sensor poses it was built from, and its prepared cache.
+
+Localizers load their map from a path (hdl_global_localization, lidar_localization_ros2); SLAM
+packages save the map as a point cloud and their trajectory in TUM format. The map is prepared
+once and the result cached beside the file (or in a cache folder when that is not writable), so
+the next start loads it instead of preparing it again.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..core import PreparedCloud, RegorConfig, prepare_cloud
+from ..core.estimate import to_matrix
+from ..core.map_cache import CacheError, file_digest, load_map, map_key, save_map
+from .cloud_io import CloudFileError, read_cloud
+
+CACHE_SUFFIX = ".regor-cache.npz"
+
+
+def default_cache_dir() -> Path:
+    """Where caches go when the map's own folder is not writable (XDG cache home)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "regor_ros"
+
+
+def read_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
+    """(stamps (K,), poses (K, 4, 4)) of a TUM trajectory: ``t tx ty tz qx qy qz qw`` per line
+    (Hamilton quaternion, scalar last), ``#`` comments; raises CloudFileError."""
+    path = Path(path)
+    if not path.is_file():
+        raise CloudFileError(f"{path}: no such file")
+    try:
+        rows = np.loadtxt(path, ndmin=2, comments="#")
+    except ValueError as exc:
+        raise CloudFileError(f"{path}: not a TUM trajectory (t x y z qx qy qz qw per line): {exc}") from None
+    if rows.shape[0] == 0 or rows.shape[1] != 8 or not np.isfinite(rows).all():
+        raise CloudFileError(f"{path}: expected rows of 8 numbers (t x y z qx qy qz qw), got shape {rows.shape}")
+    norms = np.linalg.norm(rows[:, 4:8], axis=1)
+    if (norms < 1e-6).any():
+        raise CloudFileError(f"{path}: line {int(np.argmax(norms < 1e-6)) + 1} has a zero quaternion")
+    poses = np.array([to_matrix(R, t) for R, t in zip(Rotation.from_quat(rows[:, 4:8]).as_matrix(), rows[:, 1:4])])
+    return rows[:, 0], poses
+
+
+def cache_paths(map_file: Path, cache_dir: Optional[Path]) -> List[Path]:
+    """Where the map's cache may be, in order: beside the map (unless a folder is given), then the
+    cache folder (named after the map's absolute path, so two maps never share a file)."""
+    folder = cache_dir or default_cache_dir()
+    tag = hashlib.sha1(str(map_file.resolve()).encode()).hexdigest()[:12]
+    aside = [] if cache_dir else [map_file.with_name(map_file.name + CACHE_SUFFIX)]
+    return aside + [folder / f"{map_file.stem}-{tag}{CACHE_SUFFIX}"]
+
+
+@dataclass
+class MapFromFile:
+    prepared: PreparedCloud
+    info: Dict[str, object] = field(default_factory=dict)  # for status: what was loaded, how, how long
+
+
+def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bool = True,
+                  cache_dir=None, warn: Callable[[str], None] = print) -> MapFromFile:
+    """The prepared map of ``map_file`` (any format read_cloud reads), from its cache when one
+    matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
+    stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
+    CloudFileError for files) with a message a user can act on."""
+    start = time.perf_counter()
+    map_file = Path(map_file).expanduser()
+    trajectory_file = Path(trajectory_file).expanduser() if trajectory_file else None
+    for path in (map_file, trajectory_file):
+        if path is not None and not path.is_file():
+            raise CloudFileError(f"{path}: no such file")
+    info = {"map_file": str(map_file), "map_trajectory_file": str(trajectory_file or "")}
+    paths = cache_paths(map_file, Path(cache_dir).expanduser() if cache_dir else None) if cache else []
+    key = map_key(file_digest(map_file), file_digest(trajectory_file), config.features) if cache else ""
+    for path in paths:
+        if path.is_file():
+            try:
+                prepared = load_map(path, key, config.features)
+            except CacheError as exc:
+                warn(f"map cache not used, the map is prepared again: {exc}")
+                continue
+            info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
+            return MapFromFile(prepared, _finish(info, prepared, start))
+    points = read_cloud(map_file)
+    trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
+    prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
+    info["map_cache"] = "not written" if cache else "off"
+    for path in paths:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            size = save_map(prepared, path, key)
+        except OSError as exc:
+            warn(f"map cache not written to {path}: {exc}")
+            continue
+        info.update(map_cache="built", map_cache_file=str(path), map_cache_bytes=size)
+        break
+    return MapFromFile(prepared, _finish(info, prepared, start))
+
+
+def _finish(info: dict, prepared: PreparedCloud, start: float) -> dict:
+    info.update(map_points=prepared.input_size, map_keypoints=len(prepared),
+                map_exact_search=prepared.index.exact,
+                map_preparation_seconds=round(time.perf_counter() - start, 3))
+    return info
+

@@ -1,0 +1,88 @@
+"""A map from files: cloud and TUM trajectory read, the prepared map cached, reused and rebuilt."""
+import numpy as np
+import open3d as o3d
+import pytest
+
+from regor_ros.core import RegorConfig, register
+from regor_ros.core.metrics import is_success
+from regor_ros.tools.cloud_io import CloudFileError
+from regor_ros.tools.map_file import cache_paths, load_map_file, read_trajectory
+
+from conftest import DATA, load_map_query
+
+SEQUENCE = "fastlio_avia_hku2"
+
+
+@pytest.fixture(scope="module")
+def map_files(tmp_path_factory):
+    """The real Avia map as a binary PCD and its trajectory in TUM format, in a fresh folder."""
+    scan, cloud, truth = load_map_query(SEQUENCE, "scan_000005")
+    folder = tmp_path_factory.mktemp("map")
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+    assert o3d.io.write_point_cloud(str(folder / "map.pcd"), pcd, write_ascii=False)
+    (folder / "trajectory.txt").write_text((DATA / "maps" / SEQUENCE / "map_trajectory.txt").read_text())
+    return folder / "map.pcd", folder / "trajectory.txt", scan, truth
+
+
+def test_tum_trajectory_is_read_and_bad_files_say_why(tmp_path, map_files):
+    stamps, poses = read_trajectory(map_files[1])
+    assert poses.shape == (len(stamps), 4, 4) and len(stamps) > 10
+    np.testing.assert_allclose(poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1), np.tile(np.eye(3), (len(poses), 1, 1)), atol=1e-9)
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0 1 2 3 0 0 0\n")
+    with pytest.raises(CloudFileError, match="8 numbers"):
+        read_trajectory(bad)
+    bad.write_text("0 1 2 3 0 0 0 0\n")
+    with pytest.raises(CloudFileError, match="zero quaternion"):
+        read_trajectory(bad)
+
+
+def test_the_prepared_map_is_cached_reused_and_rebuilt_when_stale(map_files, tmp_path):
+    map_file, trajectory_file, scan, truth = map_files
+    config = RegorConfig.preset("outdoor")
+    warnings = []
+    first = load_map_file(map_file, config, trajectory_file, warn=warnings.append)
+    assert first.info["map_cache"] == "built" and not warnings
+    assert first.info["map_cache_file"] == str(map_file) + ".regor-cache.npz"
+    second = load_map_file(map_file, config, trajectory_file, warn=warnings.append)
+    assert second.info["map_cache"] == "loaded" and not warnings
+    fresh, cached = register(scan, first.prepared, config), register(scan, second.prepared, config)
+    assert fresh.accepted and is_success(fresh.transform, truth, "outdoor")
+    np.testing.assert_array_equal(cached.transform, fresh.transform)
+    assert cached.summary()["visibility"] == fresh.summary()["visibility"]
+    assert len(second.prepared.map_view.trajectory) == len(first.prepared.map_view.trajectory) > 0
+
+    # other feature settings: the cache is for another key, rebuilt with a warning
+    coarser = config.replace({"features.voxel_size": 0.4})
+    assert load_map_file(map_file, coarser, trajectory_file, warn=warnings.append).info["map_cache"] == "built"
+    assert "another map file or other feature settings" in warnings[-1]
+    # a truncated file: unreadable, rebuilt
+    cache = map_file.with_name(map_file.name + ".regor-cache.npz")
+    cache.write_bytes(cache.read_bytes()[:1000])
+    assert load_map_file(map_file, coarser, trajectory_file, warn=warnings.append).info["map_cache"] == "built"
+    assert "unreadable" in warnings[-1]
+    # no trajectory: another key as well
+    assert load_map_file(map_file, coarser, None, warn=warnings.append).info["map_cache"] == "built"
+
+
+def test_the_cache_goes_to_the_cache_folder_when_the_map_folder_refuses_it(map_files, tmp_path, monkeypatch):
+    map_file = tmp_path / "map.pcd"
+    map_file.write_bytes(map_files[0].read_bytes())
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    config = RegorConfig.preset("outdoor").replace({"features.voxel_size": 0.5})
+    beside, fallback = cache_paths(map_file, None)
+    beside.mkdir()  # something that is not a writable file stands where the cache would go
+    warnings = []
+    built = load_map_file(map_file, config, warn=warnings.append)
+    assert built.info["map_cache"] == "built" and built.info["map_cache_file"] == str(fallback)
+    assert str(tmp_path / "xdg" / "regor_ros") in str(fallback) and "not written" in warnings[0]
+    assert load_map_file(map_file, config, warn=warnings.append).info["map_cache"] == "loaded"
+
+
+def test_cache_off_and_a_missing_file(map_files, tmp_path):
+    map_file, _, _, _ = map_files
+    config = RegorConfig.preset("outdoor").replace({"features.voxel_size": 0.6})
+    off = load_map_file(map_file, config, cache=False)
+    assert off.info["map_cache"] == "off" and "map_cache_file" not in off.info
+    with pytest.raises(CloudFileError, match="no such file"):
+        load_map_file(tmp_path / "nowhere.pcd", config)

@@ -1,0 +1,196 @@
+"""A robot's relocalization workflow with the installed node over DDS: big clouds from a reliable
+driver under `ros2 run` defaults, the map from a file (cached), the base pose for Nav2, and the
+relocalize service."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+
+from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+from regor_ros.ros.input_qos import fixed_profile
+from regor_ros.ros.parameters import parse_pose
+from regor_ros.ros.pointcloud import cloud_to_xyz, xyz_to_cloud
+from regor_ros.ros.transport import PROFILE_VARIABLES
+from regor_ros.tools.pair_client import pose_to_matrix
+
+from conftest import DATA, load_map_query, require_shared_data
+from ros_helpers import TIMEOUT, NodeProcess
+
+ANSWER_TIMEOUT = 30.0
+
+
+def _driver_cloud_file(tmp_path: Path) -> Path:
+    """130 k real OS1-64 points (five consecutive scans fused along odometry): 4.2 MB as a driver
+    sends it (x y z intensity ring time)."""
+    from regor_ros.tools.map_benchmark import load_sequence
+    _, _, queries = load_sequence(DATA / "maps" / "scaloam_mulran_kaist03")
+    fused = next(q for q in queries if q.history is not None and len(q.history.scans) == 5).history.fused()
+    path = tmp_path / "driver_cloud.npy"
+    np.save(path, fused.points[:130_000])
+    return path
+
+
+def _answers(ros, driver, stamps) -> int:
+    """Clouds answered (a status for their stamp) of those published one after another."""
+    answered = 0
+    for stamp in stamps:
+        driver.stdin.write(f"{stamp}\n")
+        driver.stdin.flush()
+        answered += ros.spin_until(lambda: any(s.get("source_stamp") == stamp for s in ros.statuses),
+                                   ANSWER_TIMEOUT)
+    return answered
+
+
+def _driver(cloud_file: Path, reliability: str, env) -> subprocess.Popen:
+    driver = subprocess.Popen([sys.executable, str(Path(__file__).with_name("cloud_publisher.py")),
+                               str(cloud_file), reliability], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, text=True, env=env)
+    assert driver.stdout.readline().strip() == "ready"
+    return driver
+
+
+def test_big_clouds_from_a_reliable_driver_arrive_under_defaults(install, ros, tmp_path):
+    """Neither the driver's process nor the environment the node starts in names a Fast DDS
+    profile; the node subscribes with its defaults (auto QoS) and loads its own transports."""
+    require_shared_data("the transport test")
+    plain = {k: v for k, v in os.environ.items() if k not in PROFILE_VARIABLES}
+    cloud_file = _driver_cloud_file(tmp_path)
+    ros.publish(target=xyz_to_cloud(np.load(DATA / "maps" / "scaloam_mulran_kaist03" / "map.npy"),
+                                    ros.header("map")))
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+                       "-p", "mode:=map", "-r", "__node:=register_node", env=plain)
+    driver = _driver(cloud_file, "reliable", plain)
+    try:
+        assert ros.wait_for_node(TIMEOUT), node.output()
+        assert _answers(ros, driver, range(1, 11)) == 10, node.output()
+        status = ros.statuses[-1]
+        assert status["source_qos"] == "auto: reliable" and status["target_qos"] == "auto: reliable, transient local"
+        assert status["source_clouds"] == 10 and status["dropped_stale"] == 0, status
+        assert "large-data transports" in node.output()
+        driver.stdin.close()
+        driver.wait(timeout=10)
+
+        # a best-effort driver that loads the profile, as before: the subscription follows it
+        driver = _driver(cloud_file, "best_effort", dict(os.environ))
+        assert ros.spin_until(lambda: "subscribed best effort" in node.output(), 10.0), node.output()
+        ros.spin_until(lambda: False, 1.0)  # the driver discovers the new subscription
+        assert _answers(ros, driver, range(101, 104)) == 3, node.output()
+        assert ros.statuses[-1]["source_qos"] == "auto: best effort"
+    finally:
+        if driver.poll() is None:
+            driver.stdin.close()
+            driver.wait(timeout=10)
+        assert node.stop() < 5.0
+
+
+BASE_TO_SENSOR = "0.4, -0.1, 1.2, 0.0, 0.05, 0.3"  # the sensor's mounting on the robot
+
+
+def _relocalize(ros, scan=None, timeout=TIMEOUT):
+    """Call relocalize; publish ``scan`` once the call is under way; the response."""
+    client = ros.create_client(Trigger, "/register_node/relocalize")
+    try:
+        assert client.wait_for_service(timeout_sec=TIMEOUT)
+        future = client.call_async(Trigger.Request())
+        ros.spin_until(lambda: False, 1.0)  # the call reaches the node before the scan
+        if scan is not None:
+            ros.publish(source=xyz_to_cloud(scan, ros.header("livox")))
+        assert ros.spin_until(future.done, timeout)
+        return future.result()
+    finally:
+        ros.destroy_client(client)
+
+
+def _listening(ros) -> bool:
+    """The node subscribes to source_cloud (a node with a map file has no target_cloud)."""
+    found = ros.spin_until(lambda: ros.source_pub.get_subscription_count() > 0, TIMEOUT)
+    ros.spin_until(lambda: False, 1.0)
+    return found
+
+
+def _start(install, map_file: Path, trajectory: Path):
+    return NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+                       "-p", "mode:=map", "-p", f"map_file:={map_file}", "-p", f"map_trajectory_file:={trajectory}",
+                       "-p", "registration:=on_demand", "-p", "relocalize_timeout:=4.0",
+                       "-p", "base_frame:=base_link", "-p", f"base_to_sensor:='{BASE_TO_SENSOR}'",
+                       "-r", "__node:=register_node")
+
+
+def test_a_map_file_is_cached_and_the_base_pose_answers_relocalize(install, ros, tmp_path):
+    """The real Avia map as a PCD file and its trajectory as TUM: the node prepares it, caches it
+    beside the file, publishes it once on map_cloud; relocalize without a scan says so, with one
+    it answers with the verdict and publishes the base pose. A restart loads the cache; a changed
+    map file is prepared again."""
+    scan, cloud, truth = load_map_query("fastlio_avia_hku2", "scan_000005")
+    map_file, trajectory = tmp_path / "hku.pcd", tmp_path / "hku_trajectory.txt"
+    o3d.io.write_point_cloud(str(map_file), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud)))
+    trajectory.write_text((DATA / "maps" / "fastlio_avia_hku2" / "map_trajectory.txt").read_text())
+    maps = []
+    subscription = ros.create_subscription(PointCloud2, "map_cloud", maps.append,
+                                           fixed_profile("transient_local"))
+    expected_base = truth @ np.linalg.inv(parse_pose(BASE_TO_SENSOR, "base_to_sensor"))
+    try:
+        for start, cache in enumerate(("built", "loaded", "built")):
+            if start == 2:  # the map file changes: its cache is stale
+                o3d.io.write_point_cloud(str(map_file), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud[::2])))
+            node = _start(install, map_file, trajectory)
+            try:
+                assert _listening(ros), node.output()
+                if start == 0:
+                    assert ros.spin_until(lambda: maps, TIMEOUT), node.output()
+                    assert maps[-1].header.frame_id == "map" and 1000 < len(cloud_to_xyz(maps[-1])) < len(cloud)
+                    empty = _relocalize(ros)
+                    assert not empty.success and "no source cloud arrived" in empty.message
+                seen = len(ros.poses)
+                answer = _relocalize(ros, scan)
+                assert answer.success, (answer.message, node.output())
+                assert ros.spin_until(lambda: len(ros.poses) > seen, 10.0)
+                T = pose_to_matrix(ros.poses[-1])
+                assert is_success(T, expected_base, "outdoor"), (rotation_error_deg(T, expected_base),
+                                                                 translation_error(T, expected_base))
+                assert ros.spin_until(lambda: ros.statuses and ros.statuses[-1]["map_cache"] == cache, 10.0), \
+                    (ros.statuses[-1:], node.output())
+                status = ros.statuses[-1]
+                assert status["pose_of"] == "base_link" and status["target_frame"] == "map"
+                assert status["map_cache_file"] == str(map_file) + ".regor-cache.npz"
+                if start == 2:
+                    assert "another map file" in node.output()
+            finally:
+                assert node.stop() < 5.0
+    finally:
+        ros.destroy_subscription(subscription)
+
+
+def test_pose_with_covariance_is_the_base_pose_with_the_lever_arm(install, ros, tmp_path):
+    """The covariance published is the sensor's carried to the base: never below the voxel grid's
+    resolution, and turning the sensor also moves the base (the lever arm couples them)."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    scan, cloud, _ = load_map_query("fastlio_avia_hku2", "scan_000005")
+    map_file = tmp_path / "hku.npy"
+    np.save(map_file, cloud)
+    received = []
+    subscription = ros.create_subscription(PoseWithCovarianceStamped, "pose_with_covariance", received.append, 10)
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+                       "-p", "mode:=map", "-p", f"map_file:={map_file}", "-p", "map_cache:=false",
+                       "-p", "base_frame:=base_link", "-p", f"base_to_sensor:='{BASE_TO_SENSOR}'",
+                       "-r", "__node:=register_node")
+    try:
+        assert _listening(ros), node.output()
+        ros.publish(source=xyz_to_cloud(scan, ros.header("livox")))
+        assert ros.spin_until(lambda: received, TIMEOUT), node.output()
+        covariance = np.array(received[-1].pose.covariance).reshape(6, 6)
+        assert np.allclose(covariance, covariance.T) and np.all(np.linalg.eigvalsh(covariance) > 0)
+        assert np.all(np.diag(covariance)[:3] >= 0.3 ** 2 / 12 * 0.999)   # outdoor voxel 0.3 m
+        assert np.abs(covariance[:3, 3:]).max() > 1e-6   # the lever arm couples turn and position
+        assert ros.statuses[-1]["map_cache"] == "off"
+    finally:
+        ros.destroy_subscription(subscription)
+        assert node.stop() < 5.0
