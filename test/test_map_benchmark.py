@@ -72,6 +72,8 @@ def test_map_scaling_tiles_the_map_and_scores_against_any_copy(tmp_path):
     assert [int(r["tiles"]) for r in rows] == [1, 2]
     assert int(rows[1]["map_points"]) == 2 * int(rows[0]["map_points"])
     assert int(rows[0]["queries"]) == 2 and int(rows[0]["correct"]) >= 1 and int(rows[1]["correct"]) >= 1
+    # the queries ran against the map loaded from its cache (a warm start); a bigger map, a bigger cache
+    assert float(rows[1]["cache_mb"]) > float(rows[0]["cache_mb"]) > 0
 
 
 def test_tiles_are_turned_copies_far_apart():

@@ -16,6 +16,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
                        qos_profile_sensor_data)
 
 QOS_KINDS = ("auto", "sensor_data", "reliable", "transient_local")
+AUTO_DEPTH = 5  # as the sensor-data profile: a burst is taken in order (each counted), the newest kept
 
 
 def fixed_profile(kind: str) -> QoSProfile:
@@ -36,7 +37,7 @@ def offered_profile(publisher_profiles) -> Optional[QoSProfile]:
         return None
     reliable = all(p.reliability == ReliabilityPolicy.RELIABLE for p in profiles)
     latched = all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in profiles)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=AUTO_DEPTH,
                       reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 

@@ -49,6 +49,14 @@ def read_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
     return rows[:, 0], poses
 
 
+def write_trajectory(path, poses: np.ndarray, stamps: Optional[np.ndarray] = None) -> None:
+    """Write (K, 4, 4) poses as a TUM trajectory (stamps 0..K-1 unless given)."""
+    stamps = np.arange(len(poses), dtype=np.float64) if stamps is None else stamps
+    quaternions = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
+    np.savetxt(path, np.column_stack([stamps, poses[:, :3, 3], quaternions]), fmt="%.9f",
+               header="t x y z qx qy qz qw")
+
+
 def cache_paths(map_file: Path, cache_dir: Optional[Path]) -> List[Path]:
     """Where the map's cache may be, in order: beside the map (unless a folder is given), then the
     cache folder (named after the map's absolute path, so two maps never share a file)."""
