@@ -62,19 +62,18 @@ class InputSubscription:
         if not self.auto:
             self._subscribe(fixed_profile(kind))
 
-    def update(self) -> bool:
-        """Follow the publishers' offer (auto only); True when the subscription was (re)made."""
+    def update(self) -> None:
+        """Follow the publishers' offer (auto only): resubscribe when it changed."""
         if not self.auto:
-            return False
+            return
         name = self._node.resolve_topic_name(self._topic)
         wanted = offered_profile(info.qos_profile for info in self._node.get_publishers_info_by_topic(name))
         if wanted is None or self._same(wanted):
-            return False  # no publisher left: keep listening as before
+            return  # no publisher left: keep listening as before
         if self._subscription is not None:
             self._node.destroy_subscription(self._subscription)
         self._subscribe(wanted)
         self._node.get_logger().info(f"{name}: subscribed {describe(wanted)}, as its publishers offer")
-        return True
 
     def _same(self, wanted: QoSProfile) -> bool:
         return self.profile is not None and (self.profile.reliability, self.profile.durability) == \

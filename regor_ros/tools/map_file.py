@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
@@ -69,7 +68,7 @@ def cache_paths(map_file: Path, cache_dir: Optional[Path]) -> List[Path]:
 @dataclass
 class MapFromFile:
     prepared: PreparedCloud
-    info: Dict[str, object] = field(default_factory=dict)  # for status: what was loaded, how, how long
+    info: Dict[str, object] = field(default_factory=dict)  # for status: the files and what the cache did
 
 
 def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bool = True,
@@ -78,7 +77,6 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
     stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
     CloudFileError for files) with a message a user can act on."""
-    start = time.perf_counter()
     map_file = Path(map_file).expanduser()
     trajectory_file = Path(trajectory_file).expanduser() if trajectory_file else None
     for path in (map_file, trajectory_file):
@@ -95,7 +93,7 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
                 warn(f"map cache not used, the map is prepared again: {exc}")
                 continue
             info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
-            return MapFromFile(prepared, _finish(info, prepared, start))
+            return MapFromFile(prepared, info)
     points = read_cloud(map_file)
     trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
     prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
@@ -109,12 +107,5 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
             continue
         info.update(map_cache="built", map_cache_file=str(path), map_cache_bytes=size)
         break
-    return MapFromFile(prepared, _finish(info, prepared, start))
-
-
-def _finish(info: dict, prepared: PreparedCloud, start: float) -> dict:
-    info.update(map_points=prepared.input_size, map_keypoints=len(prepared),
-                map_exact_search=prepared.index.exact,
-                map_preparation_seconds=round(time.perf_counter() - start, 3))
-    return info
+    return MapFromFile(prepared, info)
 
