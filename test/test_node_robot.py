@@ -194,3 +194,58 @@ def test_pose_with_covariance_is_the_base_pose_with_the_lever_arm(install, ros, 
     finally:
         ros.destroy_subscription(subscription)
         assert node.stop() < 5.0
+
+
+def _imu_message(ros, orientation_xyzw=None, acceleration=(0.0, 0.0, 9.81)):
+    from sensor_msgs.msg import Imu
+    msg = Imu(header=ros.header("imu"))
+    if orientation_xyzw is None:
+        msg.orientation_covariance[0] = -1.0   # REP 145: no orientation reported
+    else:
+        msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = orientation_xyzw
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = acceleration
+    return msg
+
+
+def test_the_source_up_comes_from_an_imu_and_a_tipped_over_sensor_gets_no_pose(install, ros):
+    """Ground-vehicle scans (MulRan, OS1-64 on a car, 12 m apart) with the gravity prior: the
+    source's up from an IMU that reports accelerations only (level: a pose), then from one whose
+    orientation says the sensor lies on its side (the true pose is 90 deg outside the cone: none)."""
+    from sensor_msgs.msg import Imu
+    from scipy.spatial.transform import Rotation
+    require_shared_data("the IMU test")
+    pair = DATA / "pairs_hard" / "mulran_riv02_048_to_044"
+    src, tgt, T_gt = np.load(pair / "src.npy"), np.load(pair / "tgt.npy"), np.loadtxt(pair / "gt.txt")
+    imu = ros.create_publisher(Imu, "imu", 50)
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+                       "-p", "imu_topic:=imu", "-p", "imu_window:=5.0", "-p", "gravity.target_up:='0 0 1'",
+                       "-p", "gravity.height_tolerance:=0.5", "-r", "__node:=register_node")
+    try:
+        assert ros.wait_for_node(TIMEOUT), node.output()
+        assert ros.spin_until(lambda: imu.get_subscription_count() > 0, TIMEOUT)
+        for _ in range(10):
+            imu.publish(_imu_message(ros, acceleration=(0.05, -0.03, 9.81)))
+        ros.spin_until(lambda: False, 0.5)
+        pose, status = ros.register_pair(src, tgt, TIMEOUT)
+        assert status is not None, node.output()
+        assert status["source_up"]["from"].startswith("mean IMU acceleration"), status["source_up"]
+        up = np.array(status["source_up"]["direction"].split(), dtype=float)
+        assert np.degrees(np.arccos(up[2])) < 0.5 and status["target_up"] == "0 0 1"
+        assert pose is not None, status["reason"]
+        T = pose_to_matrix(pose)
+        assert is_success(T, T_gt, "outdoor"), (rotation_error_deg(T, T_gt), translation_error(T, T_gt))
+
+        on_its_side = Rotation.from_euler("x", 90, degrees=True).as_quat()
+        for _ in range(3):
+            imu.publish(_imu_message(ros, orientation_xyzw=on_its_side))
+        ros.spin_until(lambda: False, 0.5)
+        pose, status = ros.register_pair(src, tgt, TIMEOUT)
+        assert status is not None, node.output()
+        assert status["source_up"]["from"] == "IMU orientation"
+        up = np.array(status["source_up"]["direction"].split(), dtype=float)
+        assert abs(up[1]) > 0.99, up
+        assert pose is None and not status["accepted"], status
+    finally:
+        ros.destroy_publisher(imu)
+        assert node.stop() < 5.0

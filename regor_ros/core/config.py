@@ -10,6 +10,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Dict, Iterator, List, Optional, Tuple
 
+import numpy as np
+
 
 class ConfigError(ValueError):
     """A configuration value is impossible; the message names the field."""
@@ -143,6 +145,40 @@ class AcceptanceConfig:
                           "pose; FPFH matches depend strongly on the grid (recall for latency; deviation)", 0, 20)
 
 
+@dataclass
+class GravityConfig:
+    """A ground robot's prior (core/gravity.py): the inputs' up directions, the tilt a pose may
+    have between them, and the band the source sensor's height stays in. Off until both up
+    directions are given."""
+
+    source_up: str = _param("unknown", "up direction in the source cloud's frame as 'x y z' (a level-mounted "
+                            "LiDAR: '0 0 1'; the node can take it from an IMU), or 'unknown' (no prior)")
+    target_up: str = _param("unknown", "up direction in the target cloud's (the map's) frame as 'x y z', or "
+                            "'unknown' (no prior)")
+    max_tilt: float = _param(10.0, "largest angle a pose may leave between the source's up and the target's: "
+                             "the two sensors' attitude difference (a car on roads: a few deg; with an IMU's "
+                             "up: its error) [deg]", 0.0, 180.0)
+    height_tolerance: float = _param(0.0, "how far the source's sensor may be above or below the target's "
+                                     "sensor, or the map's nearest trajectory pose, beyond what max_slope "
+                                     "allows over the distance between them (the same robot: its suspension "
+                                     "and mounting); 0 = height not checked [m]", 0.0, 1000.0)
+    max_slope: float = _param(10.0, "steepest ground the robot drives on, for the height band [deg]", 0.0, 89.0)
+
+
+def parse_up(text: str):
+    """The unit up vector written as 'x y z' (or 'x, y, z'), or None for 'unknown'."""
+    if text.strip().lower() == "unknown":
+        return None
+    try:
+        values = [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        values = []
+    up = np.asarray(values, dtype=np.float64)
+    if up.shape != (3,) or not np.isfinite(up).all() or np.linalg.norm(up) < 1e-9:
+        raise ConfigError(f"up direction {text!r}: give three numbers 'x y z' (not all zero) or 'unknown'")
+    return up / np.linalg.norm(up)
+
+
 PRESETS = ("indoor", "outdoor", "object")
 # string parameters and the values they accept
 CHOICES = {"initial.subset": ("random", "best"), "initial.ranking": ("inliers", "candidates")}
@@ -157,6 +193,7 @@ class RegorConfig:
     regeneration: RegenerationConfig = field(default_factory=RegenerationConfig)
     estimation: EstimationConfig = field(default_factory=EstimationConfig)
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    gravity: GravityConfig = field(default_factory=GravityConfig)
     seed: int = _param(51, "seed of the random generator; the same seed gives the same pose", 0, 2**31 - 1)
 
     @classmethod
@@ -244,6 +281,11 @@ class RegorConfig:
             raise ConfigError(f"acceptance.min_feature_inliers_partial={gate.min_feature_inliers_partial} must "
                               f"not be below acceptance.min_feature_inliers={gate.min_feature_inliers} (a check "
                               "that sees less needs more feature support)")
+        for name in ("source_up", "target_up"):
+            try:
+                parse_up(getattr(self.gravity, name))
+            except ConfigError as error:
+                raise ConfigError(f"gravity.{name}: {error}") from None
         if self.features.fpfh_radius < self.features.voxel_size:
             raise ConfigError("features.fpfh_radius must be at least features.voxel_size")
         return self

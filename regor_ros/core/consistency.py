@@ -6,6 +6,8 @@ three-point consistency) is built from that length residual.
 """
 from __future__ import annotations
 
+from typing import Callable, Optional
+
 import numpy as np
 from scipy import sparse
 from scipy.spatial.distance import cdist
@@ -30,30 +32,35 @@ def length_residual(source: np.ndarray, target: np.ndarray, dtype=np.float64) ->
     if source.ndim > 2:
         return np.abs(pairwise_distances(source) - pairwise_distances(target)).astype(dtype, copy=False)
     out = np.empty((len(source), len(source)), dtype=dtype)
-    for rows, block in _residual_blocks(source, target):
+    for rows, block, _ in _residual_blocks(source, target):
         out[rows] = block
     return out
 
 
 def _residual_blocks(source: np.ndarray, target: np.ndarray):
-    """The length residual of (n, 3) correspondences, RESIDUAL_ROWS rows at a time (float64)."""
+    """The length residual of (n, 3) correspondences, RESIDUAL_ROWS rows at a time (float64),
+    with the source distances it came from."""
     for start in range(0, len(source), RESIDUAL_ROWS):
         rows = slice(start, start + RESIDUAL_ROWS)
-        block = cdist(source[rows], source)
-        block -= cdist(target[rows], target)
-        yield rows, np.abs(block, out=block)
+        distance = cdist(source[rows], source)
+        yield rows, np.abs(distance - cdist(target[rows], target)), distance
 
 
-def compatibility(source: np.ndarray, target: np.ndarray, threshold: float):
+def compatibility(source: np.ndarray, target: np.ndarray, threshold: float,
+                  also: Optional[Callable[[slice, np.ndarray], np.ndarray]] = None):
     """SC2-PCR's three compatibility matrices of (n, 3) correspondences, (n, n) float32: soft
     max(0, 1 - r^2 / d^2), hard r < d and tight r < d / 2 of the length residual r (stored as
     float32). Built block by block while each residual block is in cache, never storing r.
-    ``tight`` comes back as a sparse matrix when at most SPARSE_DENSITY of it is set."""
+    ``tight`` comes back as a sparse matrix when at most SPARSE_DENSITY of it is set. ``also``
+    ((rows, their source distances) -> (len(rows), n) bool) is a further condition two compatible correspondences must
+    meet (a gravity prior's height agreement)."""
     n = len(source)
     soft, hard, tight = (np.empty((n, n), dtype=np.float32) for _ in range(3))
     nonzero = []  # tight's entries, block by block, while it stays sparse
-    for rows, block in _residual_blocks(source, target):
+    for rows, block, distance in _residual_blocks(source, target):
         r = block.astype(np.float32)
+        if also is not None:
+            r[~also(rows, distance)] = np.inf
         np.less(r, threshold, out=hard[rows])
         near = r < threshold / 2
         tight[rows] = near

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,12 +28,16 @@ def agreeing(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: f
     return np.linalg.norm(transform_points(T, source) - target, axis=1) < threshold
 
 
+Clamp = Optional[Callable[[np.ndarray], np.ndarray]]  # brings (..., 3, 3) rotations inside a prior
+
+
 def weighted_kabsch(source: np.ndarray, target: np.ndarray,
-                    weights: Optional[np.ndarray] = None) -> np.ndarray:
+                    weights: Optional[np.ndarray] = None, clamp: Clamp = None) -> np.ndarray:
     """Least-squares rigid transform(s) mapping source onto target.
 
     Works on (n, 3) or batched (b, n, 3) arrays; returns (4, 4) or (b, 4, 4). Reflections are
-    excluded with the determinant correction.
+    excluded with the determinant correction. ``clamp`` (a gravity prior's) moves the rotation
+    inside the prior before the translation is fitted to it.
     """
     if weights is None:
         weights = np.ones(source.shape[:-1])
@@ -50,6 +54,8 @@ def weighted_kabsch(source: np.ndarray, target: np.ndarray,
     D[..., 1, 1] = 1.0
     D[..., 2, 2] = d
     R = V @ D @ np.swapaxes(U, -1, -2)
+    if clamp is not None:
+        R = clamp(R)
     t = tgt_c[..., 0, :] - (R @ src_c[..., 0, :, None])[..., 0]
     return to_matrix(R, t)
 
@@ -64,7 +70,7 @@ def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
 
 
 def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float,
-                iterations: int) -> np.ndarray:
+                iterations: int, clamp: Clamp = None) -> np.ndarray:
     """SC2-PCR's post-refinement on fixed correspondences: reweighted Kabsch on the inliers of
     the current pose until the inlier count stops changing."""
     previous = 0
@@ -76,7 +82,7 @@ def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold
             break
         previous = count
         T = weighted_kabsch(source[inliers], target[inliers],
-                            cauchy_weights(residual[inliers], threshold))
+                            cauchy_weights(residual[inliers], threshold), clamp)
     return T
 
 
@@ -89,7 +95,7 @@ class PointRefinement:
 
 
 def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, threshold: float,
-                 iterations: int) -> PointRefinement:
+                 iterations: int, clamp: Clamp = None) -> PointRefinement:
     """The estimator's point-level refinement: every source keypoint against its nearest target
     keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
     def match(T):
@@ -106,7 +112,7 @@ def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, thresh
             break
         previous = count
         T = weighted_kabsch(source[inliers], target_tree.data[nearest[inliers]],
-                            cauchy_weights(distances[inliers], threshold))
+                            cauchy_weights(distances[inliers], threshold), clamp)
         distances, nearest = match(T)
         inliers = distances < threshold
     index = np.flatnonzero(inliers)

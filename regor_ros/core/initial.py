@@ -18,6 +18,7 @@ from .config import InitialConfig
 from .consistency import compatibility, leading_eigenvector, second_order, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, transform_points, weighted_kabsch
 from .features import PreparedCloud
+from .gravity import GravityPrior
 from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
@@ -46,11 +47,13 @@ def select_seeds(confidence: np.ndarray, points: np.ndarray, radius: float,
     return np.argsort(-score, kind="stable")[:count]
 
 
-def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig) -> np.ndarray:
-    """One pose per seed from its two-stage consensus set and local spectral matching; (S, 4, 4)."""
+def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig,
+                    prior: Optional[GravityPrior] = None) -> np.ndarray:
+    """One pose per seed from its two-stage consensus set and local spectral matching; (S, 4, 4).
+    With a gravity prior, compatible correspondences also agree in height."""
     n = len(src)
     d = cfg.compatibility_threshold
-    soft, hard, tight = compatibility(src, tgt, d)
+    soft, hard, tight = compatibility(src, tgt, d, None if prior is None else prior.heights_agree(src, tgt, d))
 
     confidence = leading_eigenvector(soft, cfg.power_iterations)
     seeds = select_seeds(confidence, src, cfg.nms_radius, max(1, int(cfg.seed_ratio * n)))
@@ -157,15 +160,24 @@ def _fittest(poses: list, fitnesses: list, plausible) -> np.ndarray:
 
 def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                   matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator,
-                  plausible: Optional[Callable[[np.ndarray], bool]] = None) -> InitialResult:
+                  plausible: Optional[Callable[[np.ndarray], bool]] = None,
+                  prior: Optional[GravityPrior] = None) -> InitialResult:
     """Run SC2-PCR++ on the correspondences (src[i], tgt[i]) and return T_m with its inliers.
 
     With ``plausible`` (a pose -> bool check, e.g. free space), FS-TCD's winner is the fittest
-    plausible hypothesis, or the fittest of all when none is plausible."""
+    plausible hypothesis, or the fittest of all when none is plausible. With a gravity ``prior``,
+    hypotheses come from height-consistent consensus sets, those outside its tilt cone or height
+    band are dropped before they are ranked (fewer to compare), and every refinement stays inside
+    the cone."""
     subset = consensus_subset(matches, cfg, rng)
     sub_src, sub_tgt = src[subset], tgt[subset]
+    clamp = None if prior is None else prior.clamp
 
-    hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg)
+    hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg, prior)
+    if prior is not None:
+        keeps = (prior.tilt_deg(hypotheses[:, :3, :3]) <= prior.max_tilt_deg) & prior.height_ok(hypotheses, source, target)
+        if keeps.any():
+            hypotheses = hypotheses[keeps]
     counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
     T_ic = hypotheses[int(np.argmax(counts))]
 
@@ -185,7 +197,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     refine_src, refine_tgt = src, tgt
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
     for h in ranked:
-        T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1)
+        T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp)
         if cfg.dedupe_hypotheses and any(poses_close(T, K, DEDUPE_ANGLE_DEG, tolerance) for K in kept):
             continue
         kept.append(T)
@@ -198,7 +210,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
         fitnesses.append(fitness)
     T_fs = _fittest(kept, fitnesses, plausible) if kept else T_ic
 
-    T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20)
+    T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20, clamp)
     inliers = agreeing(T_m, src, tgt, cfg.inlier_threshold)
     if not inliers.any():
         inliers = agreeing(T_ic, src, tgt, cfg.inlier_threshold)

@@ -12,6 +12,7 @@ from .config import RegorConfig
 from .estimate import (agreeing, point_refine, pose_covariance, poses_close,
                        weighted_kabsch)
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
+from .gravity import GravityPrior
 from .initial import initial_stage
 from .matching import match_features
 from .metrics import random_rigid_motion, rotation_error_deg, translation_error
@@ -170,7 +171,8 @@ def register(source: SourceInput, target: CloudInput, config: Optional[RegorConf
     if search_region is not None:
         target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
-    result = _register_once(prepared_source, target, config)
+    prior = GravityPrior.of(config.gravity)
+    result = _register_once(prepared_source, target, config, prior)
     attempts = 1
     while not result.accepted and attempts <= config.acceptance.retries and isinstance(raw_source, SeenCloud):
         turn = regrid_rotation(config.seed, attempts)
@@ -179,7 +181,7 @@ def register(source: SourceInput, target: CloudInput, config: Optional[RegorConf
             turned = prepare(raw_source.moved(turn), config.features, "source")
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
-        retry = _register_once(turned, target, config)
+        retry = _register_once(turned, target, config, prior and prior.turned(turn[:3, :3]))
         retry.timings["features"] += time.perf_counter() - regrid_start
         attempts += 1
         if retry.accepted:
@@ -190,18 +192,18 @@ def register(source: SourceInput, target: CloudInput, config: Optional[RegorConf
         if reason:
             result.accepted, result.reason = False, reason
     if result.accepted and config.acceptance.reverse_check:
-        _check_reverse(result, prepared_source, target, config)
+        _check_reverse(result, prepared_source, target, config, prior and prior.swapped())
     result.timings["features"] += prepare_seconds
     result.timings["total"] = time.perf_counter() - start
     return result
 
 
 def _check_reverse(result: RegistrationResult, source: PreparedCloud, target: PreparedCloud,
-                   config: RegorConfig) -> None:
+                   config: RegorConfig, prior: Optional[GravityPrior]) -> None:
     """Register target -> source and reject the pose unless that gives back its inverse. Box-like
     rooms of different places can align with as much feature support as a true low-overlap
     pair, but the reverse search then lands elsewhere; a true pose comes back (measured: 59 of 59)."""
-    reverse = _register_once(target, source, config)
+    reverse = _register_once(target, source, config, prior)
     returned = np.linalg.inv(reverse.transform)
     if not poses_close(result.transform, returned, REVERSE_MAX_DEG,
                        REVERSE_MAX_TAU * config.initial.inlier_threshold):
@@ -228,9 +230,10 @@ def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResu
         final=dataclasses.replace(result.final, source=result.final.source @ back))
 
 
-def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
-                   config: RegorConfig) -> RegistrationResult:
-    """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate."""
+def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: RegorConfig,
+                   prior: Optional[GravityPrior]) -> RegistrationResult:
+    """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate
+    (``prior``: the gravity prior in these clouds' frames, or None)."""
     rng = np.random.default_rng(config.seed)
     timings: Dict[str, float] = {}
     clock = time.perf_counter()
@@ -259,7 +262,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
         return worst is None or worst <= config.acceptance.max_free_space_violation
 
     initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng,
-                            plausible if config.initial.free_space_selection else None)
+                            plausible if config.initial.free_space_selection else None, prior)
     sizes = {"initial_matches": len(init_src), "initial_inliers": int(initial.inliers.sum())}
     lap("initial")
 
@@ -274,7 +277,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
             sizes[f"stage{stage}"] = len(seed_src)
     lap("regeneration")
 
-    refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config)
+    refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config, prior)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
@@ -288,7 +291,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
-                     num_feature_inliers, covariance, refined.target_index, config)
+                     num_feature_inliers, covariance, refined.target_index, config, prior)
     lap("verification")
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
@@ -301,22 +304,26 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud,
         rivals=verdict.rivals, ambiguity=verdict.ambiguity)
 
 
-def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig):
+def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+            prior: Optional[GravityPrior]):
     est = config.estimation
-    return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations)
+    return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations,
+                        prior and prior.clamp)
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,
-              config: RegorConfig):
-    """Kabsch on the regenerated correspondences, then the point-level refinement; keeps the
-    initial pose instead when it refines to more inliers (compare_initial_pose)."""
+              config: RegorConfig, prior: Optional[GravityPrior]):
+    """Kabsch on the regenerated correspondences, then the point-level refinement (inside the
+    gravity prior's tilt cone when there is one); keeps the initial pose instead when it refines
+    to more inliers (compare_initial_pose)."""
     if len(seed_src) < 3:
-        return _refine(T_initial, source, target, config), "initial"
-    refined = _refine(weighted_kabsch(seed_src, seed_tgt), source, target, config)
+        return _refine(T_initial, source, target, config, prior), "initial"
+    refined = _refine(weighted_kabsch(seed_src, seed_tgt, clamp=prior and prior.clamp),
+                      source, target, config, prior)
     est = config.estimation
     if est.compare_initial_pose and not poses_close(
             refined.transform, T_initial, SAME_POSE_DEG, SAME_POSE_FRACTION * est.inlier_threshold):
-        alternative = _refine(T_initial, source, target, config)
+        alternative = _refine(T_initial, source, target, config, prior)
         if len(alternative.source_index) > len(refined.source_index):
             return alternative, "initial"
     return refined, "regeneration"

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix, transform_points
 from .features import PreparedCloud
+from .gravity import GravityPrior
 from .metrics import rotation_error_deg
 from .visibility import VisibilityFigures, opposite_sides, seen_and_inside
 
@@ -107,19 +108,23 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,
            fitness: float, matches: tuple, num_feature_inliers: int, covariance: np.ndarray,
-           overlap_index: np.ndarray, config: RegorConfig) -> Verdict:
+           overlap_index: np.ndarray, config: RegorConfig,
+           prior: Optional[GravityPrior] = None) -> Verdict:
     """Run every check on the pose T_target_source; the reason names the first that fails.
     ``matches`` are the feature matches (source, target points), ``num_feature_inliers`` how many
     of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
-    keypoints of the pose's inlier pairs (the overlap)."""
+    keypoints of the pose's inlier pairs (the overlap). With a gravity ``prior`` the pose must
+    keep to it, and so must a symmetric rival to count."""
     gate = config.acceptance
     visibility = visibility_figures(T, source, target, gate, overlap_index)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
+    if not reason and prior is not None:
+        reason = prior.failure(T, source, target)
     rivals: List[Rival] = []
     ambiguous = None
     if not reason:  # the rivals cost a refinement each: only for poses that may be published
         rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
-                                  source, target, config)
+                                  source, target, config, prior)
         ambiguous = ambiguity(rivals, gate.max_free_space_violation, gate.max_opposite_sides)
         reason = _evidence_failure(num_feature_inliers, visibility, ambiguous, gate)
     return Verdict(not reason, reason, visibility, rivals, ambiguous)
@@ -135,18 +140,26 @@ def half_turns(points: np.ndarray) -> np.ndarray:
 
 
 def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, overlap: np.ndarray,
-                     source: PreparedCloud, target: PreparedCloud, config: RegorConfig) -> List[Rival]:
+                     source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+                     prior: Optional[GravityPrior] = None) -> List[Rival]:
     """The pose turned about each symmetry axis of the overlap and refined; the inliers of the
     pose and its rivals are counted on the same RIVAL_POINTS source keypoints (for speed). A truly
-    symmetric scene also gives the rival feature support: symmetric places look alike."""
+    symmetric scene also gives the rival feature support: symmetric places look alike. Under a
+    gravity prior, a turn that tips the source over, or lifts its sensor out of the height band,
+    is no rival (a road seen upside down)."""
     if len(overlap) < 3:
         return []
     est, gate = config.estimation, config.acceptance
     sample = source.points[np.unique(np.linspace(0, len(source) - 1, RIVAL_POINTS).astype(np.int64))]
     own = len(point_refine(T, sample, target.tree, est.inlier_threshold, 0).source_index)
     rivals = []
-    for turn in half_turns(overlap):
-        refined = point_refine(turn @ T, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS)
+    turned = half_turns(overlap) @ T
+    if prior is not None:
+        turned = turned[(prior.tilt_deg(turned[:, :3, :3]) <= prior.max_tilt_deg)
+                        & prior.height_ok(turned, source, target)]
+    for start in turned:
+        refined = point_refine(start, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS,
+                               prior and prior.clamp)
         visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
         rivals.append(Rival(len(refined.source_index) / max(own, 1),
                             int(agreeing(refined.transform, *matches, config.initial.inlier_threshold).sum())

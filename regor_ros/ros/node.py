@@ -24,7 +24,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import Header, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -33,6 +33,7 @@ from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud,
 from ..core.scan_history import ScanHistory
 from ..core.estimate import attached_pose, transform_points
 from .diagnostics import Health, diagnostic_array
+from .imu_up import ImuUp
 from .initial_guess import search_region
 from .input_qos import InputSubscription, fixed_profile
 from .messages import correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance, status_message
@@ -94,6 +95,11 @@ class RegisterNode(Node):
         self.create_subscription(Odometry, "odometry", self._on_odometry,
                                  QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                                             reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._imu = ImuUp() if self.settings.imu_topic else None  # the source's up, for the gravity prior
+        if self._imu is not None:
+            self.create_subscription(Imu, self.settings.imu_topic, self._on_imu,
+                                     QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
+                                                reliability=ReliabilityPolicy.BEST_EFFORT))
         # its own callback group: a call waits for a registration while scans keep arriving
         self.create_service(Trigger, "~/relocalize", self._on_relocalize,
                             callback_group=MutuallyExclusiveCallbackGroup())
@@ -153,6 +159,24 @@ class RegisterNode(Node):
         with self._lock:
             self.stats["odometry_messages"] += 1
             self._history.add_odometry(_stamp_seconds(msg.header), pose)
+
+    def _on_imu(self, msg: Imu) -> None:
+        """REP 145: an orientation_covariance[0] of -1 says no orientation is reported."""
+        q, a = msg.orientation, msg.linear_acceleration
+        orientation = None if msg.orientation_covariance[0] == -1.0 else np.array([q.x, q.y, q.z, q.w])
+        with self._lock:
+            self._imu.add(_stamp_seconds(msg.header), orientation, np.array([a.x, a.y, a.z]))
+
+    def _gravity(self, config, settings, src: Cloud):
+        """The configuration with the source's up direction from the IMU at the scan's stamp (or
+        unknown when the IMU gave none: no prior rather than a stale one), and what it was."""
+        if self._imu is None:
+            return config, {"direction": config.gravity.source_up, "from": "gravity.source_up"}
+        with self._lock:
+            up, where = self._imu.up_at(_stamp_seconds(src.header), settings.imu_window,
+                                        settings.imu_extrinsic()[:3, :3])
+        text = "unknown" if up is None else " ".join(f"{v:.6f}" for v in up)
+        return config.replace({"gravity.source_up": text}), {"direction": text, "from": where}
 
     def _on_initial_guess(self, msg: PoseWithCovarianceStamped) -> None:
         with self._lock:
@@ -346,6 +370,7 @@ class RegisterNode(Node):
         else:
             target, target_frame = tgt.points, tgt.header.frame_id
         try:
+            config, source_up = self._gravity(config, settings, src)
             region = self._search_region(hint, target_frame, settings)
             source, accumulation = self._source_input(src, settings)
             if source is src.points:
@@ -372,6 +397,7 @@ class RegisterNode(Node):
             extra = {"source_stamp": _stamp_seconds(src.header), "source_frame": src.header.frame_id, "target_frame": target_frame,
                      "pose_of": settings.base_frame or src.header.frame_id,
                      "mode": settings.mode, **self.stats, **self.health.inputs, "accumulation": accumulation,
+                     "source_up": source_up, "target_up": config.gravity.target_up,
                      **(self.health.map_info if settings.mode == "map" else {}),
                      "search_region": None if region is None else {
                          "centre": [float(v) for v in region.centre], "radius": region.radius}}

@@ -95,6 +95,14 @@ class NodeSettings:
                                  "'x, y, z, roll, pitch, yaw' [m, rad] (the sensor's mounting; this node does "
                                  "not look up tf)")
 
+    imu_topic: str = _param("", "sensor_msgs/Imu topic giving the source sensor's up direction for the gravity "
+                            "prior (gravity.source_up follows it; gravity.target_up must be set): the reported "
+                            "orientation, or the mean acceleration over imu_window when there is none; '' = "
+                            "gravity.source_up as set (read only)")
+    imu_window: float = _param(1.0, "seconds of IMU accelerations before a scan averaged into its up direction", 0.01, 60.0)
+    sensor_to_imu: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the IMU in the source cloud's frame: 'x, y, z, "
+                                "roll, pitch, yaw' [m, rad]; only its rotation is used")
+
     def accumulation(self) -> AccumulationLimits:
         """How many scans to fuse and how far back, with the auto default resolved."""
         scans = self.accumulate_scans or (5 if self.mode == "map" else 1)
@@ -108,6 +116,10 @@ class NodeSettings:
     def base_extrinsic(self) -> np.ndarray:
         """T_base_sensor from base_to_sensor; ConfigError when malformed."""
         return parse_pose(self.base_to_sensor, "base_to_sensor")
+
+    def imu_extrinsic(self) -> np.ndarray:
+        """T_sensor_imu from sensor_to_imu; ConfigError when malformed."""
+        return parse_pose(self.sensor_to_imu, "sensor_to_imu")
 
     def viewpoints(self):
         """(source, target) sensor positions for the core: (3,) tuples or None when unknown."""
@@ -131,7 +143,7 @@ def parse_pose(text: str, name: str) -> np.ndarray:
 CHOICES = {"mode": MODE_CHOICES, "registration": REGISTRATION_CHOICES, "source_qos": QOS_KINDS, "target_qos": QOS_KINDS,
            "preset": PRESETS, **CORE_CHOICES}
 READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period", "map_file", "map_frame",
-             "map_trajectory_file", "map_cache", "map_cache_dir"}
+             "map_trajectory_file", "map_cache", "map_cache_dir", "imu_topic"}
 
 
 def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescriptor:
@@ -184,6 +196,7 @@ def make_settings(values: Dict) -> NodeSettings:
     settings.viewpoints()  # raises on a malformed viewpoint
     settings.odometry_extrinsic()  # and on a malformed extrinsic
     settings.base_extrinsic()
+    settings.imu_extrinsic()
     if settings.map_file and settings.mode != "map":
         raise ConfigError(f"map_file={settings.map_file!r} is for mode=map (a pair's target comes on target_cloud)")
     if settings.initial_guess_min_radius > settings.initial_guess_max_radius:

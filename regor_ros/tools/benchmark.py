@@ -34,6 +34,9 @@ from ..core.metrics import (INLIER_THRESHOLDS, correct_mask, is_success, random_
 from .peers import DESCRIPTIONS, METHODS
 from .register_cli import parse_overrides
 
+UP_Z = np.array([0.0, 0.0, 1.0])  # a level-mounted sensor's up in its own frame
+LEVEL_NOTE = (" Gravity prior (--level): every cloud's z axis is up (level-mounted sensors on ground "
+              "vehicles); `-noprior` methods run without it.")
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total",
@@ -63,7 +66,7 @@ def load_pairs(folder: Path, name_filter: Optional[str]):
     run moves a pair as a full run does."""
     listing = json.loads((folder / "pairs.json").read_text())
     for index, entry in enumerate(listing):
-        if name_filter and name_filter not in entry["name"]:
+        if name_filter and not any(part in entry["name"] for part in name_filter.split(",")):
             continue
         d = folder / entry["name"]
         yield Pair(index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
@@ -85,16 +88,32 @@ class Pair:
     T_gt: Optional[np.ndarray]              # T_target_source; None: different places, no true pose
     src_viewpoint: Optional[np.ndarray]     # sensor position in the cloud's frame; None = unknown
     tgt_viewpoint: Optional[np.ndarray]
+    src_up: Optional[np.ndarray] = None     # up direction in the cloud's frame; None = unknown
+    tgt_up: Optional[np.ndarray] = None
 
     def moved(self, seed: Optional[int]) -> "Pair":
-        """The pair with its source (and the source's viewpoint) moved by the seeded motion."""
+        """The pair with its source (and the source's viewpoint and up) moved by the seeded motion."""
         if seed is None:
             return self
         M = random_rigid_motion([seed, self.index])
         viewpoint = None if self.src_viewpoint is None else M[:3, :3] @ self.src_viewpoint + M[:3, 3]
         return dataclasses.replace(self, src=self.src @ M[:3, :3].T + M[:3, 3],
                                    T_gt=None if self.T_gt is None else self.T_gt @ np.linalg.inv(M),
-                                   src_viewpoint=viewpoint)
+                                   src_viewpoint=viewpoint,
+                                   src_up=None if self.src_up is None else M[:3, :3] @ self.src_up)
+
+    def swapped(self) -> "Pair":
+        """The target as the source and the source as the target; no true pose."""
+        return dataclasses.replace(self, src=self.tgt, tgt=self.src, T_gt=None,
+                                   src_viewpoint=self.tgt_viewpoint, tgt_viewpoint=self.src_viewpoint,
+                                   src_up=self.tgt_up, tgt_up=self.src_up)
+
+    def configured(self, config: RegorConfig) -> RegorConfig:
+        """``config`` with the pair's up directions as its gravity prior, when both are known."""
+        if self.src_up is None or self.tgt_up is None:
+            return config
+        return config.replace({"gravity.source_up": " ".join(f"{v:.9f}" for v in self.src_up),
+                               "gravity.target_up": " ".join(f"{v:.9f}" for v in self.tgt_up)})
 
 
 def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
@@ -156,8 +175,7 @@ def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
     distinct target, as the source, against one source of every other place (a different one for
     each motion seed, round robin). There is no true pose, so any accepted pose is wrong. Both
     directions, because a wrong pose can pass the gate one way round and not the other."""
-    swapped = [Pair(p.index, p.name, p.kind, p.tgt, p.src, None, p.tgt_viewpoint, p.src_viewpoint)
-               for p in pairs]
+    swapped = [p.swapped() for p in pairs]
     return _crossed(pairs, seed, "", "") + _crossed(swapped, seed, " (target)", " (source)")
 
 
@@ -175,8 +193,9 @@ def _crossed(pairs: List[Pair], seed: Optional[int], source_role: str, target_ro
                 continue
             group = list(group.values())
             b = group[((seed or 0) + a.index) % len(group)]
-            crossed.append(Pair(a.index, f"{a.name}{source_role} -> {b.name}{target_role}", a.kind,
-                                a.src, b.tgt, None, a.src_viewpoint, b.tgt_viewpoint))
+            crossed.append(dataclasses.replace(
+                a, name=f"{a.name}{source_role} -> {b.name}{target_role}", tgt=b.tgt, T_gt=None,
+                tgt_viewpoint=b.tgt_viewpoint, tgt_up=b.tgt_up))
     return crossed
 
 
@@ -321,10 +340,15 @@ def main(argv=None) -> int:
     parser.add_argument("--rotate", type=int, nargs="+", metavar="SEED",
                         help="move each source by a random rigid motion drawn from SEED; several "
                              "seeds give a mean and spread")
-    parser.add_argument("--pairs", help="only pairs whose name contains this")
+    parser.add_argument("--pairs", help="only pairs (with --maps: sequences) whose name contains one of "
+                                        "these comma-separated strings")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a core parameter for every preset (repeatable)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    parser.add_argument("--level", action="store_true",
+                        help="the clouds come from level-mounted sensors in z-up frames (ground "
+                             "vehicles): the gravity prior is on with each cloud's z axis up (a moved "
+                             "source's up turns with it); regor-noprior runs without it")
     parser.add_argument("--mismatched", action="store_true",
                         help="instead: register each source against targets of other places (one per "
                              "place and seed) and count the poses each method's gate accepts: all wrong")
@@ -348,6 +372,8 @@ def main(argv=None) -> int:
             parser.error(f"{folder} has no pairs.json")
     seeds = args.rotate or [None]
     pairs = [p for folder in args.data for p in load_pairs(folder, args.pairs)]
+    if args.level:
+        pairs = [dataclasses.replace(p, src_up=UP_Z, tgt_up=UP_Z) for p in pairs]
     try:  # overrides apply to the presets of the kinds present
         overrides = parse_overrides(args.set)
         presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p.kind for p in pairs}}
@@ -360,7 +386,8 @@ def main(argv=None) -> int:
     total = len(runs)
     done = 0
     for seed, pair in runs:
-        pair_rows = evaluate_pair(pair.moved(seed), methods, presets[pair.kind], seed)
+        moved = pair.moved(seed)
+        pair_rows = evaluate_pair(moved, methods, moved.configured(presets[pair.kind]), seed)
         rows += pair_rows
         done += 1
         verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}"
@@ -376,7 +403,7 @@ def main(argv=None) -> int:
               f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
               "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
               "with FPFH included (registration alone in brackets); `published correct / WRONG`: poses that "
-              "passed the method's own quality gate (published), correct and wrong.")
+              "passed the method's own quality gate (published), correct and wrong." + LEVEL_NOTE * args.level)
     report = markdown(summary, rows, methods, header)
     stem = "mismatched" if args.mismatched else "benchmark"
     write_results(args.out, stem, report, rows, CSV_FIELDS, lambda _, path: plots(summary, methods, path))
@@ -416,9 +443,10 @@ def _methods(requested: Optional[str], available, parser) -> List[str]:
 
 def _map_main(args, argv, parser) -> int:
     """--maps and --map-scaling: the outdoor preset (every map here is LiDAR) with --set overrides."""
-    from .map_benchmark import MAP_METHODS, TILE_SPACING, run_maps, run_scaling
+    from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, TILE_SPACING, run_maps, run_scaling
     try:
-        config = RegorConfig.preset("outdoor").replace(parse_overrides(args.set))
+        config = RegorConfig.preset("outdoor").replace(
+            {**(LEVEL_MOUNTED if args.level else {}), **parse_overrides(args.set)})
     except ConfigError as exc:
         raise SystemExit(f"regor-bench: {exc}")
     header = (f"# regor_ros scan-to-map benchmark\n\n{datetime.date.today().isoformat()}, {machine()}.  \n"
@@ -427,7 +455,8 @@ def _map_main(args, argv, parser) -> int:
               "column) and registers each query against it; KISS-Matcher is given the scan and the map "
               "on every call. Peak memory is the resident peak of the process that ran the method.")
     if args.maps:
-        report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out, header)
+        report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,
+                          header + LEVEL_NOTE * args.level, args.pairs)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header.replace(
             "scan-to-map benchmark", "map scaling benchmark") + " The map is tiled: identical copies "

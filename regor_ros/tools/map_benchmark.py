@@ -28,12 +28,15 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from ..core import RegorConfig, ScanSequence, prepare_cloud, register
+from .peers import NO_PRIOR
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
 from .map_file import load_map_file, read_trajectory, write_trajectory
 from .benchmark import STAGES, gate_columns, write_results
 
-MAP_METHODS = ("regor", "kiss-matcher")
+MAP_METHODS = ("regor", "regor-noprior", "kiss-matcher")
+# --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
+LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
 INPUTS = ("single", "sequence")
 MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
@@ -106,7 +109,10 @@ def _run_map(job) -> List[dict]:
         queries += load_sequence(Path(other))[2]
     name = Path(folder).name
     base = {"map": name, "method": method, "kind": "outdoor", "map_points": len(cloud)}
-    if method == "regor":
+    regor = method.startswith("regor")
+    if method == "regor-noprior":
+        config = config.replace(NO_PRIOR)
+    if regor:
         start = time.perf_counter()
         prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
         base.update(map_seconds=time.perf_counter() - start, map_keypoints=len(prepared))
@@ -120,7 +126,7 @@ def _run_map(job) -> List[dict]:
             row = dict(base, query=f"{query.sequence}/{query.id}", input=which, query_kind=query.kind,
                        set="same" if same else "cross", scans=1 if which == "single" else len(source.scans),
                        pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
-            if method == "regor":
+            if regor:
                 result = register(source, prepared, config)
                 T, seconds, accepted = result.transform, result.timings["total"], result.accepted
                 row.update(gate_columns(result.summary()))
@@ -210,13 +216,17 @@ def map_report(rows: List[dict], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str) -> str:
-    """Every sequence's map under ``folder`` with every method; writes maps.md, .csv and .png."""
+def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str,
+             name_filter: Optional[str] = None) -> str:
+    """The map of every sequence under ``folder`` (whose name contains one of the comma-separated
+    ``name_filter``) with every method, against its own queries and every other sequence's;
+    writes maps.md, .csv and .png."""
     sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
-    if not sequences:
-        raise SystemExit(f"{folder} holds no sequence folder with queries.json")
+    maps = [s for s in sequences if not name_filter or any(part in Path(s).name for part in name_filter.split(","))]
+    if not maps:
+        raise SystemExit(f"{folder} holds no sequence folder with queries.json" + (f" matching {name_filter!r}" if name_filter else ""))
     rows = []
-    for sequence in sequences:
+    for sequence in maps:
         others = [s for s in sequences if s != sequence]
         for method in methods:
             new = _in_child(_run_map, (sequence, others, method, config))

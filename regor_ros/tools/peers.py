@@ -28,6 +28,9 @@ class MethodResult:
     figures: Optional[dict] = None          # Regor's verdict figures (RegistrationResult.summary())
 
 
+NO_PRIOR = {"gravity.source_up": "unknown", "gravity.target_up": "unknown"}
+
+
 def _regor_variant(overrides: Dict) -> Callable:
     def run(src: PreparedCloud, tgt: PreparedCloud, raw_src, raw_tgt, config: RegorConfig, seed: int):
         cfg = config.replace({**overrides, "seed": seed})
@@ -97,6 +100,8 @@ METHODS: Dict[str, Callable] = {
     "regor-1stage": _regor_variant({"stage_neighbors": [20], "stage_seeds": [500]}),
     "sc2pcr++": _regor_variant({"stage_neighbors": [], "stage_seeds": []}),
     "regor-retry3": _regor_variant({"retries": 3}),
+    "regor-noprior": _regor_variant(NO_PRIOR),
+    "regor-retry3-noprior": _regor_variant({"retries": 3, **NO_PRIOR}),
     "regor-reverse": _regor_variant({"reverse_check": True}),
     "regor-fss": _regor_variant({"free_space_selection": True}),
     "o3d-ransac": open3d_ransac,
@@ -109,6 +114,8 @@ DESCRIPTIONS = {
     "regor-1stage": "Regor with one regeneration stage (k=20, s=500), the paper's fast ablation",
     "sc2pcr++": "SC2-PCR++ initial stage alone, then the same point-level estimator (ablation)",
     "regor-retry3": "Regor with acceptance.retries=3: a rejected pose is registered again on up to 3 re-drawn voxel grids",
+    "regor-noprior": "Regor without the gravity prior (the up directions unknown), whatever the run gives it",
+    "regor-retry3-noprior": "regor-retry3 without the gravity prior",
     "regor-reverse": "Regor with acceptance.reverse_check: an accepted pose must come back from the target-to-source registration",
     "regor-fss": "Regor with initial.free_space_selection: FS-TCD picks the fittest hypothesis that passes the free-space check",
     "o3d-ransac": "Open3D FPFH + RANSAC, mutual filter, edge 0.9 + distance checkers, 100k iterations",

@@ -1,0 +1,150 @@
+"""A ground robot's prior: its scan and its map share "up", and its sensor stays near the ground.
+
+A level-mounted sensor (or an IMU's roll and pitch) gives the up direction in the scan's frame;
+a map built by a gravity-aware SLAM has it too. A pose may then tilt the scan's up away from the
+map's by at most ``max_tilt``; every other orientation (tipped over, a sensor up in a wall) is
+impossible and never competes with the right one. Where it pays:
+
+- consistency: two correct correspondences keep their height difference along up, within the
+  length threshold plus what the tilt allows over their distance (the search becomes 4-DoF in
+  spirit, as Quatro's and hdl_global_localization's are);
+- estimation: every rotation (hypotheses, refinements) is brought inside the tilt cone;
+- the gate: a pose outside the cone, or whose sensor height leaves the band, is rejected with
+  the reason, and a symmetric rival that turns the scan over is not a rival.
+
+The height band is relative to where the target was seen from (its sensor, or the map's
+trajectory, which is the same robot's sensor height above its own floor): the source's sensor
+may differ in height by ``height_tolerance`` plus what the ground's slope (``max_slope``)
+allows over the horizontal distance between them. A scan never sees the floor under its own
+sensor (the beams' blind circle), so the trajectory, not a floor fit, is the reference.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .config import GravityConfig, parse_up
+from .features import PreparedCloud
+
+
+@dataclass(frozen=True)
+class GravityPrior:
+    source_up: np.ndarray     # (3,) unit, in the source frame
+    target_up: np.ndarray     # (3,) unit, in the target frame
+    max_tilt_deg: float
+    height_tolerance: float   # metres; 0: the height is not checked
+    max_slope_deg: float
+
+    @classmethod
+    def of(cls, config: GravityConfig) -> Optional["GravityPrior"]:
+        """The prior the configuration states, or None when either up direction is unknown."""
+        source_up, target_up = parse_up(config.source_up), parse_up(config.target_up)
+        if source_up is None or target_up is None:
+            return None
+        return cls(source_up, target_up, config.max_tilt, config.height_tolerance, config.max_slope)
+
+    def turned(self, rotation: np.ndarray) -> "GravityPrior":
+        """The prior for the source turned by ``rotation`` (3x3)."""
+        return GravityPrior(rotation @ self.source_up, self.target_up, self.max_tilt_deg,
+                            self.height_tolerance, self.max_slope_deg)
+
+    def swapped(self) -> "GravityPrior":
+        """The prior for registering the target to the source."""
+        return GravityPrior(self.target_up, self.source_up, self.max_tilt_deg, self.height_tolerance,
+                            self.max_slope_deg)
+
+    def tilt_deg(self, rotations: np.ndarray) -> np.ndarray:
+        """Angle between the source's up turned by each (..., 3, 3) rotation and the target's up."""
+        cosine = np.einsum("...ij,j,i->...", rotations, self.source_up, self.target_up)
+        return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+    def clamp(self, rotations: np.ndarray) -> np.ndarray:
+        """Each (..., 3, 3) rotation, turned by the smallest rotation that brings its tilt within
+        max_tilt (about the axis perpendicular to both ups); rotations inside are unchanged."""
+        turned_up = rotations @ self.source_up                                      # (..., 3)
+        axis = np.cross(turned_up, self.target_up)
+        sine = np.linalg.norm(axis, axis=-1)
+        tilt = np.arctan2(sine, turned_up @ self.target_up)
+        excess = tilt - np.radians(self.max_tilt_deg)
+        fix = excess > 0
+        if not np.any(fix):
+            return rotations
+        # upside down exactly: any horizontal axis will do
+        fallback = np.cross(self.target_up, _any_perpendicular(self.target_up))
+        axis = np.where((sine > 1e-12)[..., None], axis / np.maximum(sine, 1e-12)[..., None], fallback)
+        correction = _axis_angle(axis, np.where(fix, excess, 0.0))
+        return correction @ rotations
+
+    def heights_agree(self, source: np.ndarray, target: np.ndarray, threshold: float):
+        """A compatibility condition for consistency.compatibility: (rows, their source distances)
+        -> does each pair's height difference along up agree within ``threshold`` plus the tilt's
+        share of their distance? (len(rows), n) bool."""
+        height_s, height_t = source @ self.source_up, target @ self.target_up
+        offset = height_s - height_t  # agreement: offset_i - offset_j stays small
+        slack = np.sin(np.radians(self.max_tilt_deg))
+
+        def agree(rows: slice, distance: np.ndarray) -> np.ndarray:
+            return np.abs(offset[rows, None] - offset[None]) <= threshold + slack * distance
+        return agree
+
+    def failure(self, T: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> str:
+        """Why the pose breaks the prior (empty when it does not): tilt, then sensor height."""
+        tilt = float(self.tilt_deg(T[:3, :3]))
+        if tilt > self.max_tilt_deg + 1e-6:
+            return (f"the pose tilts the source's up by {tilt:.1f} deg from the target's "
+                    f"(gravity.max_tilt={self.max_tilt_deg:g}): tipped over")
+        band = self.height_band(T[None], source, target)
+        if band is not None and abs(band[0][0]) > band[1][0]:
+            height, allowed, distance = (float(v[0]) for v in band)
+            return (f"the pose puts the source's sensor {height:+.2f} m from the height the target "
+                    f"was seen from, {distance:.1f} m away (allowed {allowed:.2f} m: "
+                    f"gravity.height_tolerance={self.height_tolerance:g} plus gravity.max_slope="
+                    f"{self.max_slope_deg:g} deg over that distance)")
+        return ""
+
+    def height_ok(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> np.ndarray:
+        """(S,) bool: which of the (S, 4, 4) poses keep the source's sensor in the height band
+        (all of them when the height is not checked)."""
+        band = self.height_band(transforms, source, target)
+        return np.ones(len(transforms), dtype=bool) if band is None else np.abs(band[0]) <= band[1]
+
+    def height_band(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud):
+        """For (S, 4, 4) poses: the height of the source's sensor above the target viewpoint
+        horizontally nearest to it (along up), the height allowed there and their horizontal
+        distance, each (S,); None when not checked: no height band, the source's sensor unknown
+        (its newest viewpoint is used: a fused sequence's pose is its newest scan's) or nowhere
+        the target was seen from."""
+        if self.height_tolerance <= 0 or not source.views:
+            return None
+        seen_from = target.viewpoints
+        if seen_from is None and target.map_view is not None and len(target.map_view.trajectory):
+            seen_from = target.map_view.trajectory
+        if seen_from is None:
+            return None
+        sensors = transforms[:, :3, :3] @ source.viewpoints[-1] + transforms[:, :3, 3]   # (S, 3)
+        offset = sensors[:, None] - seen_from[None]                                      # (S, K, 3)
+        height = offset @ self.target_up
+        horizontal = np.linalg.norm(offset - height[..., None] * self.target_up, axis=-1)
+        nearest = np.argmin(horizontal, axis=1)[:, None]
+        height = np.take_along_axis(height, nearest, axis=1)[:, 0]
+        distance = np.take_along_axis(horizontal, nearest, axis=1)[:, 0]
+        allowed = self.height_tolerance + distance * np.tan(np.radians(self.max_slope_deg))
+        return height, allowed, distance
+
+
+def _any_perpendicular(v: np.ndarray) -> np.ndarray:
+    other = np.eye(3)[int(np.argmin(np.abs(v)))]
+    p = np.cross(v, other)
+    return p / np.linalg.norm(p)
+
+
+def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Rodrigues' rotation matrices of (..., 3) unit axes and (...) angles."""
+    k = np.zeros(axis.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -axis[..., 2], axis[..., 1], -axis[..., 0]
+    k = k - np.swapaxes(k, -1, -2)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * k + (1 - c) * (k @ k)
+

@@ -1,0 +1,102 @@
+"""The gravity prior on real ground-vehicle LiDAR (MulRan, OS1-64 on a car: its z axis is up,
+measured tilt between the two scans 0.35 deg against the SLAM truth)."""
+import numpy as np
+import pytest
+
+from regor_ros.core import RegorConfig, prepare_cloud, register
+from regor_ros.core.config import ConfigError, parse_up
+from regor_ros.core.gravity import GravityPrior
+from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
+from regor_ros.tools.benchmark import UP_Z, Pair
+
+from conftest import DATA, require_shared_data
+
+PAIR = "mulran_riv02_048_to_044"  # 12 m apart, 72 % overlap: Regor registers it with or without the prior
+
+
+@pytest.fixture(scope="module")
+def ground_pair():
+    require_shared_data("the gravity prior tests")
+    folder = DATA / "pairs_hard" / PAIR
+    return np.load(folder / "src.npy"), np.load(folder / "tgt.npy"), np.loadtxt(folder / "gt.txt")
+
+
+def level(config: RegorConfig, source_up, height_tolerance=0.5) -> RegorConfig:
+    return config.replace({"gravity.source_up": " ".join(map(str, source_up)), "gravity.target_up": "0 0 1",
+                           "gravity.height_tolerance": height_tolerance})
+
+
+def tipped(T: np.ndarray, degrees: float) -> np.ndarray:
+    """T turned about the target's x axis through the source's sensor."""
+    a = np.radians(degrees)
+    turn = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    out = T.copy()
+    out[:3, :3] = turn @ T[:3, :3]
+    return out
+
+
+def test_up_directions_are_parsed_or_named_in_the_error():
+    assert np.allclose(parse_up("0, 0, 2"), [0, 0, 1])
+    assert parse_up("unknown") is None
+    assert GravityPrior.of(RegorConfig().gravity) is None          # off by default: today's behaviour
+    with pytest.raises(ConfigError, match="gravity.source_up"):
+        RegorConfig().replace({"gravity.source_up": "0 0"})
+    with pytest.raises(ConfigError, match="gravity.target_up"):
+        RegorConfig().replace({"gravity.target_up": "0 0 0"})
+
+
+def test_clamp_moves_a_rotation_onto_the_cone_and_leaves_one_inside_alone():
+    prior = GravityPrior(np.array([0.0, 0, 1]), np.array([0.0, 0, 1]), 10.0, 0.0, 10.0)
+    inside, outside = tipped(np.eye(4), 6.0)[:3, :3], tipped(np.eye(4), 30.0)[:3, :3]
+    clamped = prior.clamp(np.stack([inside, outside]))
+    assert np.allclose(clamped[0], inside)
+    assert prior.tilt_deg(clamped[1]) == pytest.approx(10.0)
+    assert rotation_error_deg(np.pad(clamped[1], (0, 1)), np.pad(outside, (0, 1))) == pytest.approx(20.0)
+    upside_down = prior.clamp(tipped(np.eye(4), 180.0)[:3, :3])
+    assert prior.tilt_deg(upside_down) == pytest.approx(10.0)
+
+
+def test_a_level_pose_passes_and_a_tipped_over_one_is_rejected_with_the_reason(ground_pair):
+    src, tgt, T = ground_pair
+    config = level(RegorConfig.preset("outdoor"), UP_Z)
+    source = prepare_cloud(src, config, viewpoint=[0, 0, 0])
+    target = prepare_cloud(tgt, config, viewpoint=[0, 0, 0])
+    prior = GravityPrior.of(config.gravity)
+    assert prior.failure(T, source, target) == ""
+    assert "gravity.max_tilt=10" in prior.failure(tipped(T, 25.0), source, target)
+    lifted = T.copy()
+    lifted[2, 3] += 4.0  # 12 m away: 0.5 m plus 12 m x tan(10 deg) = 2.6 m allowed
+    assert "gravity.height_tolerance=0.5" in prior.failure(lifted, source, target)
+    assert prior.height_ok(np.stack([T, lifted]), source, target).tolist() == [True, False]
+
+
+def test_registration_with_the_prior_stays_inside_it_and_finds_the_pose(ground_pair):
+    src, tgt, T = ground_pair
+    M = random_rigid_motion([3, 1])  # the source turned any way: its up turns with it
+    moved = src @ M[:3, :3].T + M[:3, 3]
+    truth = T @ np.linalg.inv(M)
+    config = level(RegorConfig.preset("outdoor"), M[:3, :3] @ UP_Z)
+    result = register(moved, tgt, config, source_viewpoint=M[:3, 3])
+    assert result.accepted, result.reason
+    assert rotation_error_deg(result.transform, truth) < 5 and translation_error(result.transform, truth) < 0.6
+    assert GravityPrior.of(config.gravity).tilt_deg(result.transform[:3, :3]) <= 10.0
+
+
+def test_a_wrong_up_direction_cannot_give_a_published_pose(ground_pair):
+    """Told the sensor lies on its side (x up) with a 5 deg bound, no pose inside the cone fits:
+    the true one is 90 deg outside it."""
+    src, tgt, _ = ground_pair
+    config = level(RegorConfig.preset("outdoor"), [1.0, 0.0, 0.0]).replace({"gravity.max_tilt": 5.0})
+    result = register(src, tgt, config)
+    assert not result.accepted
+    assert GravityPrior.of(config.gravity).tilt_deg(result.transform[:3, :3]) <= 5.0 + 1e-6
+
+
+def test_the_benchmark_turns_the_source_up_with_its_random_motion(ground_pair):
+    src, tgt, T = ground_pair
+    pair = Pair(3, PAIR, "outdoor", src, tgt, T, np.zeros(3), np.zeros(3), UP_Z, UP_Z)
+    moved = pair.moved(5)
+    before = GravityPrior.of(pair.configured(RegorConfig.preset("outdoor")).gravity).tilt_deg(T[:3, :3])
+    after = GravityPrior.of(moved.configured(RegorConfig.preset("outdoor")).gravity).tilt_deg(moved.T_gt[:3, :3])
+    assert after == pytest.approx(before, abs=1e-6)
+    assert before < 1.0   # the measured tilt of this pair: 0.35 deg
