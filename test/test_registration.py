@@ -59,7 +59,7 @@ def test_a_retry_result_is_given_in_the_source_frame(kitchen_pair):
     assert rotation_error_deg(turn, np.eye(4)) > 30.0   # a real turn, so a frame slip would show
     target = prepare_cloud(tgt, cfg, "target")
     turned = prepare_cloud(transform_points(turn, src), cfg, "source")
-    r = _undo_turn(_register_once(turned, target, cfg), turn)
+    r = _undo_turn(_register_once(turned, target, cfg, None), turn)
     assert is_success(r.transform, T_gt, "indoor")
     keypoints = prepare_cloud(src, cfg, "source").tree
     for pairs in (r.initial, r.final):   # source keypoints lie on the source as given
