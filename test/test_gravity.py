@@ -67,7 +67,7 @@ def test_a_level_pose_passes_and_a_tipped_over_one_is_rejected_with_the_reason(g
     lifted = T.copy()
     lifted[2, 3] += 4.0  # 12 m away: 0.5 m plus 12 m x tan(10 deg) = 2.6 m allowed
     assert "gravity.height_tolerance=0.5" in prior.failure(lifted, source, target)
-    assert prior.height_ok(np.stack([T, lifted]), source, target).tolist() == [True, False]
+    assert prior.allows(np.stack([T, lifted, tipped(T, 25.0)]), source, target).tolist() == [True, False, False]
 
 
 def test_registration_with_the_prior_stays_inside_it_and_finds_the_pose(ground_pair):

@@ -20,7 +20,7 @@ sensor (the beams' blind circle), so the trajectory, not a floor fit, is the ref
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
@@ -47,13 +47,11 @@ class GravityPrior:
 
     def turned(self, rotation: np.ndarray) -> "GravityPrior":
         """The prior for the source turned by ``rotation`` (3x3)."""
-        return GravityPrior(rotation @ self.source_up, self.target_up, self.max_tilt_deg,
-                            self.height_tolerance, self.max_slope_deg)
+        return replace(self, source_up=rotation @ self.source_up)
 
     def swapped(self) -> "GravityPrior":
         """The prior for registering the target to the source."""
-        return GravityPrior(self.target_up, self.source_up, self.max_tilt_deg, self.height_tolerance,
-                            self.max_slope_deg)
+        return replace(self, source_up=self.target_up, target_up=self.source_up)
 
     def tilt_deg(self, rotations: np.ndarray) -> np.ndarray:
         """Angle between the source's up turned by each (..., 3, 3) rotation and the target's up."""
@@ -104,11 +102,12 @@ class GravityPrior:
                     f"{self.max_slope_deg:g} deg over that distance)")
         return ""
 
-    def height_ok(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> np.ndarray:
-        """(S,) bool: which of the (S, 4, 4) poses keep the source's sensor in the height band
-        (all of them when the height is not checked)."""
+    def allows(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> np.ndarray:
+        """(S,) bool: which of the (S, 4, 4) poses stay inside the tilt cone and keep the source's
+        sensor in the height band (when the height is checked)."""
+        inside = self.tilt_deg(transforms[:, :3, :3]) <= self.max_tilt_deg
         band = self.height_band(transforms, source, target)
-        return np.ones(len(transforms), dtype=bool) if band is None else np.abs(band[0]) <= band[1]
+        return inside if band is None else inside & (np.abs(band[0]) <= band[1])
 
     def height_band(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud):
         """For (S, 4, 4) poses: the height of the source's sensor above the target viewpoint

@@ -175,7 +175,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
 
     hypotheses = seed_hypotheses(sub_src, sub_tgt, cfg, prior)
     if prior is not None:
-        keeps = (prior.tilt_deg(hypotheses[:, :3, :3]) <= prior.max_tilt_deg) & prior.height_ok(hypotheses, source, target)
+        keeps = prior.allows(hypotheses, source, target)
         if keeps.any():
             hypotheses = hypotheses[keeps]
     counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)

@@ -155,8 +155,7 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
     rivals = []
     turned = half_turns(overlap) @ T
     if prior is not None:
-        turned = turned[(prior.tilt_deg(turned[:, :3, :3]) <= prior.max_tilt_deg)
-                        & prior.height_ok(turned, source, target)]
+        turned = turned[prior.allows(turned, source, target)]
     for start in turned:
         refined = point_refine(start, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS,
                                prior and prior.clamp)

@@ -26,12 +26,11 @@ class ImuUp:
 
     def add(self, stamp: float, orientation_xyzw: Optional[np.ndarray], acceleration: np.ndarray) -> None:
         """One message: its stamp, its orientation quaternion or None (not reported), and its
-        linear acceleration."""
-        up = None
-        if orientation_xyzw is not None and np.isfinite(orientation_xyzw).all() and \
-                np.linalg.norm(orientation_xyzw) > 0.5:
-            up = Rotation.from_quat(orientation_xyzw).inv().apply([0.0, 0.0, 1.0])
-        self._readings.append((stamp, up, np.asarray(acceleration, dtype=np.float64)))
+        linear acceleration. Kept as given: only the one before a scan is ever turned into up."""
+        usable = orientation_xyzw is not None and np.isfinite(orientation_xyzw).all() and \
+            np.linalg.norm(orientation_xyzw) > 0.5
+        self._readings.append((stamp, orientation_xyzw if usable else None,
+                               np.asarray(acceleration, dtype=np.float64)))
 
     def up_at(self, stamp: float, window: float, R_sensor_imu: np.ndarray) -> Tuple[Optional[np.ndarray], str]:
         """(unit up in the source cloud's frame, or None; where it came from) for a scan at
@@ -42,7 +41,8 @@ class ImuUp:
         if not before:
             return None, f"no IMU message in the {window:g} s before the scan"
         if before[-1][1] is not None:
-            return R_sensor_imu @ before[-1][1], "IMU orientation"
+            up_in_imu = Rotation.from_quat(before[-1][1]).inv().apply([0.0, 0.0, 1.0])
+            return R_sensor_imu @ up_in_imu, "IMU orientation"
         mean = np.mean([r[2] for r in before], axis=0)
         norm = np.linalg.norm(mean)
         if not np.isfinite(norm) or norm < 1e-6:

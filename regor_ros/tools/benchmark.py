@@ -66,12 +66,18 @@ def load_pairs(folder: Path, name_filter: Optional[str]):
     run moves a pair as a full run does."""
     listing = json.loads((folder / "pairs.json").read_text())
     for index, entry in enumerate(listing):
-        if name_filter and not any(part in entry["name"] for part in name_filter.split(",")):
+        if not selected(entry["name"], name_filter):
             continue
         d = folder / entry["name"]
         yield Pair(index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
                    np.loadtxt(d / "gt.txt"), _viewpoint(entry.get("src_viewpoint", ORIGIN)),
                    _viewpoint(entry.get("tgt_viewpoint", ORIGIN)))
+
+
+def selected(name: str, name_filter: Optional[str]) -> bool:
+    """Whether ``name`` contains one of the comma-separated ``name_filter`` strings (all names
+    are selected without a filter): --pairs."""
+    return not name_filter or any(part in name for part in name_filter.split(","))
 
 
 def _viewpoint(value):

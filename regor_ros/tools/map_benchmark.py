@@ -32,7 +32,7 @@ from .peers import NO_PRIOR
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
 from .map_file import load_map_file, read_trajectory, write_trajectory
-from .benchmark import STAGES, gate_columns, write_results
+from .benchmark import STAGES, gate_columns, selected, write_results
 
 MAP_METHODS = ("regor", "regor-noprior", "kiss-matcher")
 # --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
@@ -222,7 +222,7 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
     ``name_filter``) with every method, against its own queries and every other sequence's;
     writes maps.md, .csv and .png."""
     sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
-    maps = [s for s in sequences if not name_filter or any(part in Path(s).name for part in name_filter.split(","))]
+    maps = [s for s in sequences if selected(Path(s).name, name_filter)]
     if not maps:
         raise SystemExit(f"{folder} holds no sequence folder with queries.json" + (f" matching {name_filter!r}" if name_filter else ""))
     rows = []
