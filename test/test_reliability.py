@@ -116,7 +116,9 @@ def test_hostile_input_is_skipped_with_a_warning_per_kind(install, ros):
         src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 41)
         pose, status = ros.register_pair(src, tgt, TIMEOUT)
         assert pose is not None and is_success(pose_to_matrix(pose), T_gt, kind), status
-        assert status["bad_inputs"] >= 200  # a few are superseded before the worker sees them
+        # how many reach the worker depends on timing (a newer cloud supersedes one not yet
+        # registered), but every kind must have been counted and warned about
+        assert status["bad_inputs"] >= len(kinds), status
         log = node.output()
         for text in kinds:
             assert text in log, f"no warning for {text!r}"
