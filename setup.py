@@ -29,6 +29,7 @@ setup(
             "regor-pair-client = regor_ros.tools.pair_client:main",
             "regor-bench = regor_ros.tools.benchmark:main",
             "regor-register = regor_ros.tools.register_cli:main",
+            "regor-batch = regor_ros.tools.batch:main",
             "regor-calibrate-gate = regor_ros.tools.calibrate_gate:main",
         ],
     },

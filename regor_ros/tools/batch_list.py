@@ -1,0 +1,123 @@
+"""The pair list of a batch: one candidate pair per row, in CSV (with a header) or JSON lines.
+
+Columns: ``source`` and ``target`` (cloud files, relative to the scans folder when one is given,
+else to the list's own folder), optional ``id`` (default: the row's line number; give ids when the
+list may be edited between a run and its resumption), ``source_viewpoint`` / ``target_viewpoint``
+('x, y, z', 'none' for a map or an aggregated cloud, default the cloud's origin) and ``preset``.
+A row that cannot run (an empty path, a bad viewpoint, an unknown preset) is kept with the reason,
+so that it gets an error row in the output; a list that cannot be read at all raises ListError.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional
+
+from ..core.config import PRESETS, ConfigError
+from ..core.visibility import parse_viewpoint
+
+COLUMNS = ("id", "source", "target", "source_viewpoint", "target_viewpoint", "preset")
+
+
+class ListError(Exception):
+    """A pair list that cannot be used at all (no file, no source/target columns, repeated ids)."""
+
+
+@dataclass(frozen=True)
+class PairRow:
+    id: str
+    source: str                  # as written in the list
+    target: str
+    source_path: Optional[Path]  # resolved; None when the row has an error
+    target_path: Optional[Path]
+    source_viewpoint: object     # a parse_viewpoint result: (x, y, z), or None for unknown
+    target_viewpoint: object
+    preset: str
+    error: str = ""              # why the row cannot run; empty when it can
+
+    def clouds(self):
+        """The (path, viewpoint) of each cloud: what identifies a prepared cloud."""
+        return (self.source_path, self.source_viewpoint), (self.target_path, self.target_viewpoint)
+
+
+def _viewpoint_text(value) -> str:
+    """A viewpoint cell as parse_viewpoint reads it; JSON may also give a list or null."""
+    if value is None:
+        return "none"
+    if isinstance(value, (list, tuple)):
+        return ", ".join(str(v) for v in value)
+    return str(value).strip() or "auto"
+
+
+def _row(fields: Dict[str, object], line: int, folder: Path, default_preset: str) -> PairRow:
+    text = {k: ("" if fields.get(k) is None else str(fields.get(k)).strip())
+            for k in ("id", "source", "target", "preset")}
+    row_id = text["id"] or str(line)
+    source, target = text["source"], text["target"]
+    preset = text["preset"] or default_preset
+    try:
+        if not source or not target:
+            raise ConfigError("the row needs both a source and a target file")
+        if preset not in PRESETS:
+            raise ConfigError(f"preset {preset!r} is not one of {', '.join(PRESETS)}")
+        viewpoints = [parse_viewpoint(_viewpoint_text(fields.get(f"{side}_viewpoint", "auto")), f"{side}_viewpoint")
+                      for side in ("source", "target")]
+    except ConfigError as exc:
+        return PairRow(row_id, source, target, None, None, None, None, preset, str(exc))
+    return PairRow(row_id, source, target, folder / source, folder / target, viewpoints[0], viewpoints[1], preset)
+
+
+def _json_lines(path: Path):
+    """(line number, fields) of each non-empty line; a line that is not a JSON object gives
+    fields with an ``error``."""
+    with open(path, encoding="utf-8") as f:
+        for line, text in enumerate(f, 1):
+            if not text.strip():
+                continue
+            try:
+                fields = json.loads(text)
+            except json.JSONDecodeError as exc:
+                fields = {"error": f"line {line} is not JSON ({exc.msg})"}
+            if not isinstance(fields, dict):
+                fields = {"error": f"line {line} is not a JSON object"}
+            yield line, fields
+
+
+def _csv_rows(path: Path):
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        missing = {"source", "target"} - set(reader.fieldnames or ())
+        if missing:
+            raise ListError(f"{path}: the header must name the columns source and target "
+                            f"(optional: {', '.join(c for c in COLUMNS if c not in ('source', 'target'))}); "
+                            f"it has {', '.join(reader.fieldnames or ['nothing'])}")
+        for fields in reader:  # a short row's missing cells are empty, as written
+            yield reader.line_num, {k: "" if v is None else v for k, v in fields.items()}
+
+
+def read_pairs(path, scans=None, default_preset: str = "indoor") -> List[PairRow]:
+    """The rows of a pair list (``.csv``, or JSON lines for any other name)."""
+    path = Path(path).expanduser()
+    if not path.is_file():
+        raise ListError(f"{path}: no such pair list")
+    folder = Path(scans).expanduser() if scans else path.parent
+    if scans and not folder.is_dir():
+        raise ListError(f"{folder}: no such scans folder")
+    lines = _csv_rows(path) if path.suffix.lower() == ".csv" else _json_lines(path)
+    rows, seen = [], {}
+    try:
+        for line, fields in lines:
+            row = _row(fields, line, folder, default_preset)
+            if "error" in fields:
+                row = PairRow(row.id, row.source, row.target, None, None, None, None, row.preset, fields["error"])
+            if row.id in seen:
+                raise ListError(f"{path}: id {row.id!r} is on lines {seen[row.id]} and {line}; ids must be unique")
+            seen[row.id] = line
+            rows.append(row)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ListError(f"{path}: not a CSV or JSON-lines text file ({exc})") from None
+    if not rows:
+        raise ListError(f"{path}: no pairs in the list")
+    return rows

@@ -1,0 +1,98 @@
+"""What a batch worker does with one pair: register it, with each cloud prepared once per process.
+
+Candidate lists share clouds (a scan is checked against each place recognition proposes for it),
+and preparing a cloud (voxel grid, normals, FPFH) is a fair share of a registration. Each worker
+process keeps the clouds it prepared most recently and reuses them; register() gives the same
+pose for a prepared cloud as for its raw points. The one exception is acceptance.retries: a retry
+re-grids the raw source, so with retries the source is passed raw (prepared per pair).
+"""
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from collections import OrderedDict
+from typing import Dict, Optional
+
+import numpy as np
+
+from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
+from .batch_list import PairRow
+from .cloud_io import read_cloud
+
+
+class PreparedClouds:
+    """The ``capacity`` clouds this process prepared last, by file, its state on disk, viewpoint
+    and feature settings (a rewritten file or other settings is prepared again)."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self._clouds: "OrderedDict[tuple, PreparedCloud]" = OrderedDict()
+        self._lock = threading.Lock()  # a worker may run pairs in several threads
+
+    @staticmethod
+    def key(path, viewpoint, config: RegorConfig) -> tuple:
+        stat = os.stat(path)  # FileNotFoundError for a missing file: the row's error
+        return str(path), stat.st_size, stat.st_mtime_ns, viewpoint, repr(config.features)
+
+    def get(self, path, viewpoint, config: RegorConfig, name: str):
+        """(the prepared cloud, whether it was reused)."""
+        key = self.key(path, viewpoint, config)
+        with self._lock:
+            if key in self._clouds:
+                self._clouds.move_to_end(key)
+                return self._clouds[key], True
+        cloud = prepare_cloud(read_cloud(path), config, name, viewpoint=viewpoint)
+        with self._lock:
+            self._clouds[key] = cloud
+            while len(self._clouds) > self.capacity:
+                self._clouds.popitem(last=False)
+        return cloud, False
+
+
+_clouds: Optional[PreparedClouds] = None  # this process's, made by the first pair it registers
+
+
+def _process_clouds(capacity: int) -> PreparedClouds:
+    global _clouds
+    if _clouds is None or _clouds.capacity != capacity:
+        _clouds = PreparedClouds(capacity)
+    return _clouds
+
+
+def result_row(result) -> Dict:
+    """A registration's output row: the pose, its covariance, the verdict and the gate's figures."""
+    return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(), **result.summary()}
+
+
+def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int) -> Dict:
+    """The output row of one pair; any failure becomes the row's ``error``, never an exception."""
+    start = time.perf_counter()
+    out = {"id": row.id, "source": row.source, "target": row.target, "preset": row.preset,
+           "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    try:
+        if row.error:
+            raise ValueError(row.error)
+        config = RegorConfig.preset(row.preset).replace(overrides)
+        clouds = _process_clouds(cache_capacity)
+        target, target_reused = clouds.get(row.target_path, row.target_viewpoint, config, "target")
+        if config.acceptance.retries:
+            source, source_reused = read_cloud(row.source_path), False
+            kwargs = {"source_viewpoint": row.source_viewpoint}
+        else:
+            (source, source_reused), kwargs = clouds.get(row.source_path, row.source_viewpoint, config, "source"), {}
+        result = register(source, target, config, **kwargs)
+        out.update(result_row(result), reused=int(source_reused) + int(target_reused), error="")
+    except FileNotFoundError as exc:
+        out.update(accepted=False, error=f"{exc.filename}: no such file")
+    except (ValueError, OSError, MemoryError) as exc:  # RegistrationError and ConfigError are ValueErrors
+        out.update(accepted=False, error=str(exc) or type(exc).__name__)
+    out["seconds"] = time.perf_counter() - start
+    return out
+
+
+def same_result(row: Dict, result) -> bool:
+    """Whether an output row holds exactly the pose and verdict register() gave."""
+    return (not row.get("error") and row["accepted"] == result.accepted and row["reason"] == result.reason
+            and np.array_equal(np.array(row["transform"]), result.transform))
