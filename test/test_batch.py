@@ -14,7 +14,7 @@ import pytest
 from regor_ros.core import RegorConfig, register
 from regor_ros.tools.batch import Dispatcher, ResultFile
 from regor_ros.tools.batch_list import ListError, read_pairs
-from regor_ros.tools.batch_worker import same_result
+from regor_ros.tools.batch_benchmark import same_result
 
 from conftest import DATA, require_shared_data
 
@@ -123,7 +123,7 @@ def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tm
     import logging
     from distributed import Client, LocalCluster
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
     client = Client(cluster)
     out = tmp_path / "out.jsonl"
     try:

@@ -192,12 +192,12 @@ def open_client(workers: int, scheduler: Optional[str]):
     """A client of the cluster at ``scheduler``, or of a new local one on loopback with
     ``workers`` single-threaded worker processes."""
     import logging
-    from distributed import Client, LocalCluster
+    from distributed import Client
     if scheduler:
         return Client(scheduler, timeout=30)
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, silence_logs=logging.ERROR)
-    return Client(cluster)
+    # a cluster the client makes is closed with it; its status page on a free loopback port
+    return Client(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                  dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
 
 
 def main(argv=None) -> int:
@@ -241,7 +241,7 @@ def main(argv=None) -> int:
             counts = run_batch(rows, results, overrides, client, args.cache_clouds, progress)
         else:
             counts = {"written": 0, "accepted": 0, "errors": 0, "reused": 0}
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, RuntimeError) as exc:  # RuntimeError: a worker that cannot start
         print(f"regor-batch: the cluster failed ({exc}); rerun to resume", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -15,8 +15,6 @@ import time
 from collections import OrderedDict
 from typing import Dict, Optional
 
-import numpy as np
-
 from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
 from .batch_list import PairRow
 from .cloud_io import read_cloud
@@ -91,8 +89,3 @@ def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int
     out["seconds"] = time.perf_counter() - start
     return out
 
-
-def same_result(row: Dict, result) -> bool:
-    """Whether an output row holds exactly the pose and verdict register() gave."""
-    return (not row.get("error") and row["accepted"] == result.accepted and row["reason"] == result.reason
-            and np.array_equal(np.array(row["transform"]), result.transform))
