@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from regor_ros.core import RegorConfig, register
-from regor_ros.tools.batch import Dispatcher, ResultFile
+from regor_ros.tools.batch import Dispatcher, ResultFile, plain_worker_environment
 from regor_ros.tools.batch_list import ListError, read_pairs
 from regor_ros.tools.batch_benchmark import same_result
 
@@ -122,8 +122,9 @@ def test_a_rerun_resumes_and_skips_the_rows_already_written(first_run, serial, s
 def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tmp_path):
     import logging
     from distributed import Client, LocalCluster
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+    with plain_worker_environment():  # an existing cluster, set up as regor-batch's own
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
     client = Client(cluster)
     out = tmp_path / "out.jsonl"
     try:

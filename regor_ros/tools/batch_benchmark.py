@@ -36,7 +36,7 @@ def candidate_list(maps: Path, folder: Path) -> Dict[str, np.ndarray]:
     """Write every within-sequence pair of query scans to ``folder/pairs.jsonl``; returns the truth
     (T_target_source) of each pair id."""
     truths, lines = {}, []
-    for sequence in sorted(p for p in maps.iterdir() if (p / "queries.json").is_file()):
+    for sequence in sorted(p.resolve() for p in maps.iterdir() if (p / "queries.json").is_file()):
         scans = [q["id"] for q in json.loads((sequence / "queries.json").read_text()) if q["kind"] == "scan"]
         for source, target in itertools.combinations(scans, 2):
             pair_id = f"{sequence.name}/{source}-{target}"
