@@ -23,10 +23,11 @@ from typing import Dict, List, Optional, Set, TextIO
 from ..core import ConfigError, RegorConfig
 from ..core.config import PRESETS
 from .batch_list import ListError, PairRow, read_pairs
-from .batch_worker import register_row
+from .batch_worker import register_row, row_identity
 from .register_cli import parse_overrides
 
 IN_FLIGHT_PER_THREAD = 2  # one running, one queued: a worker never waits for the next pair
+COUNTED = ("written", "accepted", "errors", "reused")  # what a run reports
 
 
 class ResultFile:
@@ -139,15 +140,14 @@ def _failed_row(row: PairRow, exc: BaseException) -> Dict:
         error = "the pair stopped every worker that ran it (out of memory, or a crash in a native library)"
     else:
         error = f"internal error: {type(exc).__name__}: {exc}"
-    return {"id": row.id, "source": row.source, "target": row.target, "preset": row.preset,
-            "accepted": False, "error": error}
+    return {**row_identity(row), "accepted": False, "error": error}
 
 
 def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, object], client,
               cache_capacity: int, progress: Progress) -> Dict[str, int]:
     """Register the rows not yet in ``results`` on the client's workers; returns counts."""
     from distributed import as_completed
-    counts = {"written": 0, "accepted": 0, "errors": 0, "reused": 0}
+    counts = dict.fromkeys(COUNTED, 0)
     finished = as_completed()
     running: Dict[object, tuple] = {}  # future -> (row, the worker it was sent to)
     load: Dict[str, int] = defaultdict(int)
@@ -191,7 +191,7 @@ def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, obj
 
 def open_client(workers: int, scheduler: Optional[str]):
     """A client of the cluster at ``scheduler``, or of a new local one on loopback with
-    ``workers`` single-threaded worker processes."""
+    ``workers`` worker processes, each registering one pair at a time."""
     import logging
     from distributed import Client
     if scheduler:
@@ -254,7 +254,7 @@ def main(argv=None) -> int:
             client = open_client(args.workers, args.scheduler)
             counts = run_batch(rows, results, overrides, client, args.cache_clouds, progress)
         else:
-            counts = {"written": 0, "accepted": 0, "errors": 0, "reused": 0}
+            counts = dict.fromkeys(COUNTED, 0)
     except (OSError, TimeoutError, RuntimeError) as exc:  # RuntimeError: a worker that cannot start
         print(f"regor-batch: the cluster failed ({exc}); rerun to resume", file=sys.stderr)
         return 2

@@ -58,6 +58,8 @@ def _row(fields: Dict[str, object], line: int, folder: Path, default_preset: str
     source, target = text["source"], text["target"]
     preset = text["preset"] or default_preset
     try:
+        if "error" in fields:  # a JSON line that could not be read
+            raise ConfigError(fields["error"])
         if not source or not target:
             raise ConfigError("the row needs both a source and a target file")
         if preset not in PRESETS:
@@ -110,8 +112,6 @@ def read_pairs(path, scans=None, default_preset: str = "indoor") -> List[PairRow
     try:
         for line, fields in lines:
             row = _row(fields, line, folder, default_preset)
-            if "error" in fields:
-                row = PairRow(row.id, row.source, row.target, None, None, None, None, row.preset, fields["error"])
             if row.id in seen:
                 raise ListError(f"{path}: id {row.id!r} is on lines {seen[row.id]} and {line}; ids must be unique")
             seen[row.id] = line

@@ -59,6 +59,11 @@ def _process_clouds(capacity: int) -> PreparedClouds:
     return _clouds
 
 
+def row_identity(row: PairRow) -> Dict:
+    """The fields that say which pair an output row is for."""
+    return {"id": row.id, "source": row.source, "target": row.target, "preset": row.preset}
+
+
 def result_row(result) -> Dict:
     """A registration's output row: the pose, its covariance, the verdict and the gate's figures."""
     return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(), **result.summary()}
@@ -67,8 +72,7 @@ def result_row(result) -> Dict:
 def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int) -> Dict:
     """The output row of one pair; any failure becomes the row's ``error``, never an exception."""
     start = time.perf_counter()
-    out = {"id": row.id, "source": row.source, "target": row.target, "preset": row.preset,
-           "worker": f"{socket.gethostname()}:{os.getpid()}"}
+    out = {**row_identity(row), "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
         if row.error:
             raise ValueError(row.error)
