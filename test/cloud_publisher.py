@@ -3,7 +3,7 @@ x y z intensity ring time (32 bytes a point) on source_cloud, one message per li
 stdin (the line is the stamp in seconds), with the reliability given on the command line. It
 sets no Fast DDS profile of its own: it runs with whatever environment the test gives it."""
 import sys
-import threading
+import time
 
 import numpy as np
 import rclpy
@@ -14,6 +14,7 @@ from std_msgs.msg import Header
 FIELDS = [("x", 0, PointField.FLOAT32), ("y", 4, PointField.FLOAT32), ("z", 8, PointField.FLOAT32),
           ("intensity", 12, PointField.FLOAT32), ("ring", 16, PointField.UINT16), ("time", 20, PointField.FLOAT32)]
 POINT_STEP = 32
+MATCH_TIMEOUT_S = 30.0
 
 
 def driver_cloud(points: np.ndarray, stamp: int, frame: str) -> PointCloud2:
@@ -29,6 +30,14 @@ def driver_cloud(points: np.ndarray, stamp: int, frame: str) -> PointCloud2:
                        data=data.tobytes())
 
 
+def wait_for_subscriber(publisher) -> None:
+    """A volatile writer delivers only to readers it has already matched: a message published
+    before the match is lost for good, so wait for one (as a real driver's next scan would)."""
+    deadline = time.monotonic() + MATCH_TIMEOUT_S
+    while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 def main(cloud_file: str, reliability: str) -> None:
     points = np.load(cloud_file)
     rclpy.init()
@@ -37,9 +46,9 @@ def main(cloud_file: str, reliability: str) -> None:
                      reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable"
                      else ReliabilityPolicy.BEST_EFFORT)
     publisher = node.create_publisher(PointCloud2, "source_cloud", qos)
-    threading.Thread(target=rclpy.spin, args=(node,), daemon=True).start()
     print("ready", flush=True)
     for line in sys.stdin:
+        wait_for_subscriber(publisher)
         publisher.publish(driver_cloud(points, int(line), "velodyne"))
         print("published", line.strip(), flush=True)
     node.destroy_node()
