@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core.estimate import (attached_pose, point_refine, pose_covariance, post_refine, to_matrix,
-                                     transform_points, weighted_kabsch)
+from regor_ros.core.estimate import (attached_pose, plane_refine, plane_thresholds, point_refine, pose_covariance,
+                                     post_refine, to_matrix, transform_points, weighted_kabsch)
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 
 from conftest import random_motion
@@ -64,6 +64,41 @@ def test_point_refinement_converges_from_a_perturbed_pose(kitchen_pair):
     assert rotation_error_deg(result.transform, T_gt) < 3.0
     assert len(result.source_index) > 0.5 * len(s)
     assert (result.distances < 0.1).all()
+
+
+def test_plane_thresholds_halve_tau_e_down_to_the_voxel_size():
+    assert plane_thresholds(1.2, 0.3) == [1.2, 0.6, 0.3]
+    assert plane_thresholds(0.10, 0.05) == [0.10, 0.05]
+    assert plane_thresholds(0.10, 0.30) == [0.10]
+
+
+def _floor(offset):
+    """A 10 m x 10 m floor of points (normals up) and a pose that lifts and slides it by ``offset``."""
+    x, y = np.meshgrid(np.arange(0.0, 10.0, 0.1), np.arange(0.0, 10.0, 0.1))
+    points = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    return points, normals, to_matrix(np.eye(3), np.array(offset))
+
+
+def test_plane_refinement_fixes_what_the_surfaces_fix_and_leaves_the_rest():
+    """A floor fixes height, roll and pitch, never a slide along it: the slide the point level
+    left stays (damping), the height is corrected."""
+    from scipy.spatial import cKDTree
+    points, normals, start = _floor([0.3, -0.2, 0.05])
+    T = plane_refine(start, points, points, normals, cKDTree(points), [0.4, 0.2])
+    np.testing.assert_allclose(T[:3, 3], [0.3, -0.2, 0.0], atol=1e-3)
+    np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-6)
+
+
+def test_plane_refinement_keeps_its_rotation_inside_the_clamp():
+    from scipy.spatial import cKDTree
+    points, normals, start = _floor([0.0, 0.0, 0.05])
+    start[:3, :3] = Rotation.from_euler("x", 3.0, degrees=True).as_matrix()
+    kept = start[:3, :3].copy()
+    T = plane_refine(start, points, points, normals, cKDTree(points), [0.4, 0.2],
+                     clamp=lambda R: np.broadcast_to(kept, R.shape))
+    np.testing.assert_allclose(T[:3, :3], kept, atol=1e-12)
+    assert abs(transform_points(T, points)[:, 2].mean()) < 0.01  # the height still fitted under it
 
 
 AXES = np.array([1.0, 2.0, 3.0])

@@ -1,4 +1,4 @@
-"""Pose estimation: weighted Kabsch, the two refinement loops, and the pose covariance."""
+"""Pose estimation: weighted Kabsch, the refinement loops, and the pose covariance."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -98,24 +98,82 @@ def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, thresh
                  iterations: int, clamp: Clamp = None) -> PointRefinement:
     """The estimator's point-level refinement: every source keypoint against its nearest target
     keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
-    def match(T):
-        # neighbours beyond the threshold are not needed: the bound prunes the tree search
-        return target_tree.query(transform_points(T, source), distance_upper_bound=threshold,
-                                 workers=-1)
-
     previous = -1
-    distances, nearest = match(T)
-    inliers = distances < threshold
+    current = inliers_at(T, source, target_tree, threshold)
     for _ in range(iterations):
-        count = int(inliers.sum())
+        count = len(current.source_index)
         if count == previous or count < 3:
             break
         previous = count
-        T = weighted_kabsch(source[inliers], target_tree.data[nearest[inliers]],
-                            cauchy_weights(distances[inliers], threshold), clamp)
-        distances, nearest = match(T)
-        inliers = distances < threshold
-    index = np.flatnonzero(inliers)
+        T = weighted_kabsch(source[current.source_index], target_tree.data[current.target_index],
+                            cauchy_weights(current.distances, threshold), clamp)
+        current = inliers_at(T, source, target_tree, threshold)
+    return current
+
+
+# a point-to-plane step moves along a direction only as far as the surfaces fix it: damping of
+# this fraction of the best-fixed direction's curvature keeps free directions (a corridor's axis)
+# where the point-level refinement left them
+PLANE_DAMPING = 1e-3
+PLANE_STEP_SETTLED = 1e-4  # a step this small (rad, m) ends a threshold's iterations
+PLANE_ITERATIONS = 5  # per threshold: Gauss-Newton on planes settles in a few steps (3 sufficed on a MulRan scan)
+
+
+def plane_thresholds(inlier_threshold: float, voxel_size: float) -> list:
+    """The fine refinement's schedule: tau_e halved down to the keypoint spacing, below which a
+    nearest neighbour is no longer the same surface element."""
+    thresholds = [inlier_threshold]
+    while thresholds[-1] / 2 >= voxel_size:
+        thresholds.append(thresholds[-1] / 2)
+    return thresholds
+
+
+def _rotation(w: np.ndarray) -> np.ndarray:
+    """Rodrigues: the rotation by the vector ``w`` (axis times angle in radians)."""
+    angle = np.linalg.norm(w)
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if angle < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(angle) / angle * K + (1 - np.cos(angle)) / angle ** 2 * K @ K
+
+
+def plane_refine(T: np.ndarray, source: np.ndarray, target_points: np.ndarray, target_normals: np.ndarray,
+                 target_tree: cKDTree, thresholds, clamp: Clamp = None) -> np.ndarray:
+    """Point-to-plane refinement of a pose the point-level refinement found: Cauchy-weighted
+    Gauss-Newton on each keypoint's distance to its nearest target keypoint's plane, the
+    threshold annealed (``plane_thresholds``). The point-level refinement pairs keypoints up to
+    tau_e apart (1.2 m outdoors), so a sparse scan's pose stays about half a voxel off; planes
+    slide into place where points would have to coincide."""
+    for threshold in thresholds:
+        for _ in range(PLANE_ITERATIONS):
+            moved = transform_points(T, source)
+            distances, nearest = target_tree.query(moved, distance_upper_bound=threshold, workers=-1)
+            near = distances < threshold
+            if near.sum() < 6:
+                break
+            normals = target_normals[nearest[near]]
+            arm = moved[near] - moved[near].mean(axis=0)  # rotate about the moved cloud's centre
+            residual = np.einsum("ij,ij->i", moved[near] - target_points[nearest[near]], normals)
+            jacobian = np.hstack([np.cross(arm, normals), normals])
+            weighted = jacobian * cauchy_weights(residual, threshold)[:, None]
+            H = weighted.T @ jacobian
+            H += PLANE_DAMPING * np.linalg.eigvalsh(H)[-1] * np.eye(6)
+            step = -np.linalg.solve(H, weighted.T @ residual)
+            rotation = _rotation(step[:3])
+            if clamp is not None:
+                rotation = clamp(rotation @ T[:3, :3]) @ T[:3, :3].T
+            centre = moved[near].mean(axis=0)
+            T = to_matrix(rotation, centre + step[3:] - rotation @ centre) @ T
+            if np.abs(step).max() < PLANE_STEP_SETTLED:
+                break
+    return T
+
+
+def inliers_at(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, threshold: float) -> PointRefinement:
+    """The keypoints ``T`` brings within ``threshold`` of a target keypoint: the final inliers."""
+    distances, nearest = target_tree.query(transform_points(T, source), distance_upper_bound=threshold,
+                                           workers=-1)
+    index = np.flatnonzero(distances < threshold)
     return PointRefinement(T, index, nearest[index], distances[index])
 
 

@@ -9,8 +9,8 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import (agreeing, point_refine, pose_covariance, poses_close,
-                       weighted_kabsch)
+from .estimate import (agreeing, inliers_at, plane_refine, plane_thresholds, point_refine,
+                       pose_covariance, poses_close, weighted_kabsch)
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
 from .initial import initial_stage
@@ -278,6 +278,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     lap("regeneration")
 
     refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config, prior)
+    if config.estimation.plane_refinement:
+        refined = _plane_refine(refined.transform, src_cloud, tgt_cloud, config, prior)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
@@ -309,6 +311,19 @@ def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config:
     est = config.estimation
     return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations,
                         prior and prior.clamp)
+
+
+def _plane_refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+                  prior: Optional[GravityPrior]):
+    """The point-to-plane refinement of the estimator's pose, and its inliers within tau_e. The
+    estimator's pose is known to within tau_e: a refinement that leaves that neighbourhood slid
+    to another pose (along a corridor, onto a repeated facade), so the estimator's is kept."""
+    est = config.estimation
+    fine = plane_refine(T, source.points, target.points, target.normals, target.tree,
+                        plane_thresholds(est.inlier_threshold, config.features.voxel_size), prior and prior.clamp)
+    if not poses_close(fine, T, SAME_POSE_DEG, est.inlier_threshold):
+        fine = T
+    return inliers_at(fine, source.points, target.tree, est.inlier_threshold)
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,

@@ -28,13 +28,14 @@ from typing import Dict, List, Optional
 import numpy as np
 
 from ..core import RegorConfig, ScanSequence, prepare_cloud, register
-from .peers import NO_PRIOR
+from .peers import NO_PRIOR, PLANE
 from ..core.estimate import to_matrix
 from ..core.metrics import is_success, rotation_error_deg, translation_error
 from .map_file import load_map_file, read_trajectory, write_trajectory
 from .benchmark import STAGES, gate_columns, selected, write_results
 
-MAP_METHODS = ("regor", "regor-noprior", "kiss-matcher")
+REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
+MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
 # --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
 LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
 INPUTS = ("single", "sequence")
@@ -109,9 +110,9 @@ def _run_map(job) -> List[dict]:
         queries += load_sequence(Path(other))[2]
     name = Path(folder).name
     base = {"map": name, "method": method, "kind": "outdoor", "map_points": len(cloud)}
-    regor = method.startswith("regor")
-    if method == "regor-noprior":
-        config = config.replace(NO_PRIOR)
+    regor = method in REGOR_VARIANTS
+    if regor:
+        config = config.replace(REGOR_VARIANTS[method])
     if regor:
         start = time.perf_counter()
         prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)

@@ -29,6 +29,7 @@ class MethodResult:
 
 
 NO_PRIOR = {"gravity.source_up": "unknown", "gravity.target_up": "unknown"}
+PLANE = {"estimation.plane_refinement": True}
 
 
 def _regor_variant(overrides: Dict) -> Callable:
@@ -104,6 +105,7 @@ METHODS: Dict[str, Callable] = {
     "regor-retry3-noprior": _regor_variant({"retries": 3, **NO_PRIOR}),
     "regor-reverse": _regor_variant({"reverse_check": True}),
     "regor-fss": _regor_variant({"free_space_selection": True}),
+    "regor-plane": _regor_variant(PLANE),
     "o3d-ransac": open3d_ransac,
     "o3d-fgr": open3d_fgr,
     "kiss-matcher": kiss_matcher,
@@ -118,6 +120,7 @@ DESCRIPTIONS = {
     "regor-retry3-noprior": "regor-retry3 without the gravity prior",
     "regor-reverse": "Regor with acceptance.reverse_check: an accepted pose must come back from the target-to-source registration",
     "regor-fss": "Regor with initial.free_space_selection: FS-TCD picks the fittest hypothesis that passes the free-space check",
+    "regor-plane": "Regor with estimation.plane_refinement: the pose refined point-to-plane after the point level",
     "o3d-ransac": "Open3D FPFH + RANSAC, mutual filter, edge 0.9 + distance checkers, 100k iterations",
     "o3d-fgr": "Open3D Fast Global Registration on the same features",
     "kiss-matcher": "KISS-Matcher 1.0 (pip), own features at the same voxel size",
