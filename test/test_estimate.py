@@ -159,6 +159,25 @@ def test_covariance_is_never_finer_than_the_voxel_grid():
     assert np.all(np.diag(cov)[3:] > 0) and np.diag(cov).max() < 1.0
 
 
+def test_covariance_grows_along_the_direction_the_surfaces_constrain_weakly():
+    """A corridor along x: walls, floor and ceiling face y and z; only 8 points of an end wall pin
+    x, 50 times fewer than face y. The position along the corridor is then known about sqrt(50)
+    times less well than across it, while across it stays at the voxel grid's resolution."""
+    rng = np.random.default_rng(14)
+    u = rng.uniform(-1, 1, size=(200, 2))
+    walls = [np.c_[5 * u[:, 0], np.full(200, side), u[:, 1]] for side in (-1.0, 1.0)]
+    floors = [np.c_[5 * u[:, 0], u[:, 1], np.full(200, side)] for side in (-1.0, 1.0)]
+    end = np.c_[np.full(8, 5.0), rng.uniform(-1, 1, size=(8, 2))]
+    src = np.vstack([*walls, *floors, end])
+    normals = np.vstack([np.tile([0.0, 1.0, 0.0], (400, 1)), np.tile([0.0, 0.0, 1.0], (400, 1)),
+                         np.tile([1.0, 0.0, 0.0], (8, 1))])
+    cov = pose_covariance(np.eye(4), src, src, normals, 0.05)
+    grid = 0.05 ** 2 / 12
+    assert cov[1, 1] == pytest.approx(grid, rel=0.05) and cov[2, 2] == pytest.approx(grid, rel=0.05)
+    assert 30 < cov[0, 0] / grid < 70
+    assert np.linalg.eigvalsh(cov).max() < 1.0
+
+
 def test_attached_pose_moves_with_the_lever_arm():
     """The base 1 m behind the sensor: the sensor's yaw uncertainty becomes sideways uncertainty."""
     T = to_matrix(Rotation.from_euler("z", 90, degrees=True).as_matrix(), np.array([5.0, 2.0, 0.0]))

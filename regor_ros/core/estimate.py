@@ -193,15 +193,14 @@ def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
     The residual term alone claims millimetres from thousands of keypoints, as if their errors
     were independent; they are not (every keypoint is a voxel's centroid, and neighbours share
     the map's blur), and on the real scan-to-map queries the errors were 10-40 times larger. So
-    the resolution the registration works at is added: a position known within one voxel
-    (sigma = voxel / sqrt(12) per axis) and the turn that moves the inliers' radius of gyration
-    by as much."""
+    the resolution the registration works at is added (resolution_covariance)."""
     moved = transform_points(T, source)
     n = len(moved)
     if n < 7:
         return np.eye(6) * UNCONSTRAINED_VARIANCE
+    arm = moved - T[:3, 3]
     residual = ((moved - target) * target_normals).sum(axis=1)
-    J = np.hstack([target_normals, np.cross(moved - T[:3, 3], target_normals)])   # (n, 6)
+    J = np.hstack([target_normals, np.cross(arm, target_normals)])   # (n, 6)
     JtJ = J.T @ J
     eigenvalues, eigenvectors = np.linalg.eigh(JtJ)
     sigma2 = max(float(residual @ residual) / (n - 6), 1e-12)
@@ -210,11 +209,23 @@ def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
     covariance = (eigenvectors * (sigma2 * inverse)) @ eigenvectors.T
     if not constrained.all():
         covariance += UNCONSTRAINED_VARIANCE * (eigenvectors[:, ~constrained] @ eigenvectors[:, ~constrained].T)
-    position_variance = voxel_size ** 2 / 12.0
-    gyration = np.sqrt(np.mean(np.sum((moved - T[:3, 3]) ** 2, axis=1)))
-    covariance[:3, :3] += position_variance * np.eye(3)
-    covariance[3:, 3:] += position_variance / max(gyration, voxel_size) ** 2 * np.eye(3)
-    return covariance
+    gyration = max(np.sqrt(np.mean(np.sum(arm ** 2, axis=1))), voxel_size)
+    return covariance + resolution_covariance(JtJ, gyration, voxel_size)
+
+
+def resolution_covariance(JtJ: np.ndarray, gyration: float, voxel_size: float) -> np.ndarray:
+    """The pose's uncertainty from the voxel grid the registration works at, shaped by the
+    surfaces. Along the direction the inliers' normals constrain best the position is known within
+    one voxel (sigma = voxel / sqrt(12)), and a turn within the one that moves the inliers' radius
+    of gyration by as much. A keypoint pins the pose along its normal only, so a direction that
+    the normals constrain k times less (a corridor's length, a road's heading, a narrow field of
+    view down a street) is known sqrt(k) times less well: an error the grid's bias makes there is
+    not corrected by anything. Never finer than the grid in any direction."""
+    scale = np.r_[np.ones(3), np.full(3, 1.0 / gyration)]   # turns in units of the gyration
+    eigenvalues, eigenvectors = np.linalg.eigh(JtJ * np.outer(scale, scale))
+    weakness = eigenvalues[-1] / np.maximum(eigenvalues, eigenvalues[-1] / UNCONSTRAINED_VARIANCE)
+    shape = (eigenvectors * weakness) @ eigenvectors.T
+    return voxel_size ** 2 / 12.0 * shape * np.outer(scale, scale)
 
 
 def attached_pose(T: np.ndarray, covariance: np.ndarray, T_frame_other: np.ndarray):
