@@ -50,6 +50,8 @@ def test_maps_mode_registers_every_query_alone_and_fused_and_writes_its_reports(
     report = (tmp_path / "out" / "maps.md").read_text()
     assert "| regor | single | 2 | 1 | 1 / 0 |" in report and "| regor | sequence | 2 | 2 | 2 / 0 |" in report
     assert "median seconds per stage" in report
+    assert 0 < float(regor["scan_000005", "single"]["error_sigmas"]) < 4.1   # the error against the covariance
+    assert "regor's covariance against the truth: 3 of 3 published correct poses" in report
     assert (tmp_path / "out" / "maps.png").stat().st_size > 1000
 
 

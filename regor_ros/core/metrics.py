@@ -36,6 +36,18 @@ def is_success(T_est: np.ndarray, T_gt: np.ndarray, kind: str) -> bool:
     return rotation_error_deg(T_est, T_gt) < max_re and translation_error(T_est, T_gt) < max_te
 
 
+def error_sigmas(T_est: np.ndarray, T_gt: np.ndarray, covariance: np.ndarray) -> float:
+    """How many standard deviations of ``covariance`` (6x6 over x, y, z and a small turn about the
+    pose's position, in the target frame's axes, as register() reports it) the error is: the
+    Mahalanobis distance of (position error, rotation vector of R_est R_gt^T). A covariance that
+    states the real uncertainty keeps 99 % of errors within ERROR_SIGMAS_99."""
+    error = np.r_[T_est[:3, 3] - T_gt[:3, 3], Rotation.from_matrix(T_est[:3, :3] @ T_gt[:3, :3].T).as_rotvec()]
+    return float(np.sqrt(error @ np.linalg.solve(covariance, error)))
+
+
+ERROR_SIGMAS_99 = 4.1   # square root of the chi-square 99 % quantile with 6 degrees of freedom (16.81)
+
+
 def correct_mask(source: np.ndarray, target: np.ndarray, T_gt: np.ndarray, threshold: float) -> np.ndarray:
     """Correspondences whose source point lands within ``threshold`` of its target under the truth."""
     moved = source @ T_gt[:3, :3].T + T_gt[:3, 3]

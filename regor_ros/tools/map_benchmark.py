@@ -30,7 +30,7 @@ import numpy as np
 from ..core import RegorConfig, ScanSequence, prepare_cloud, register
 from .peers import NO_PRIOR, PLANE
 from ..core.estimate import to_matrix
-from ..core.metrics import is_success, rotation_error_deg, translation_error
+from ..core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success, rotation_error_deg, translation_error
 from .map_file import load_map_file, read_trajectory, write_trajectory
 from .benchmark import STAGES, gate_columns, selected, write_results
 
@@ -43,7 +43,7 @@ MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_k
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
               *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "num_inliers",
               "fitness", "feature_inliers", "free_space_source", "free_space_target", "opposite_sides",
-              "map_seen", "ambiguity", "rivals", "reason", "error"]
+              "map_seen", "ambiguity", "rivals", "error_sigmas", "reason", "error"]
 TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 SCALING_QUERIES = 10  # queries registered at each map size (the median of 5 moved by 0.1 s between runs)
 
@@ -131,6 +131,8 @@ def _run_map(job) -> List[dict]:
                 result = register(source, prepared, config)
                 T, seconds, accepted = result.transform, result.timings["total"], result.accepted
                 row.update(gate_columns(result.summary()))
+                if same:
+                    row["error_sigmas"] = error_sigmas(T, query.truth, result.covariance)
             else:
                 import kiss_matcher as km
                 points = source if which == "single" else source.fused().points
@@ -194,6 +196,13 @@ def map_report(rows: List[dict], header: str) -> str:
         lines.append(f"| {name} | {method} | {which} | {sum(r['success'] for r in group)}/{len(group)} | "
                      f"{right} / {wrong} | {_median([r['seconds'] for r in group]):.2f} | "
                      f"{'-' if prep is None else f'{prep:.1f}'} | {group[0]['peak_memory_gb']:.2f} |")
+    covered = [r for r in same if r["accepted"] is True and r["success"] and "error_sigmas" in r]
+    for (method,), group in _groups(covered, "method").items():
+        within = sum(r["error_sigmas"] <= ERROR_SIGMAS_99 for r in group)
+        lines += ["", f"{method}'s covariance against the truth: {within} of {len(group)} published correct poses "
+                  f"lie within its 99 % ellipsoid (6-D Mahalanobis distance at most {ERROR_SIGMAS_99}); median "
+                  f"{_median([r['error_sigmas'] for r in group]):.1f} sigma, largest "
+                  f"{max(r['error_sigmas'] for r in group):.1f}."]
     if cross:
         lines += ["", "## Cross-map: every query against every other sequence's map (any published pose is wrong)", "",
                   "| method | input | registrations | published WRONG | median s |", "|---|---|---|---|---|"]
