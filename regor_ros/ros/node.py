@@ -43,6 +43,7 @@ from .transport import use_large_data_profile
 from ..tools.map_file import load_map_file
 
 WARN_THROTTLE_S = 5.0
+STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration under way is abandoned)
 QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
 
 
@@ -388,6 +389,8 @@ class RegisterNode(Node):
             self.get_logger().error(f"registration failed: {type(exc).__name__}: {exc}")
             return False, f"registration failed: {type(exc).__name__}: {exc}"
         with self._lock:
+            if self._stopping:  # the node's publishers are going away
+                return False, "node stopping"
             self.stats["registrations"] += 1
             self.stats["accepted_poses"] += int(result.accepted)
             self.health.last_error = self.health.last_bad_input = ""
@@ -423,10 +426,13 @@ class RegisterNode(Node):
         return result.accepted, (f"pose published ({figures})" if result.accepted
                                  else f"pose published although rejected: {result.reason}")
 
-    def stop(self) -> None:
+    def stop(self, timeout: float) -> None:
+        """Stop the worker: wait up to timeout for it to finish (a registration under way is
+        abandoned; it publishes nothing once stopping) and wake a waiting relocalize call."""
         with self._lock:
             self._stopping = True
             self._lock.notify_all()
+        self._worker.join(timeout)
 
 
 def main(args=None) -> int:
@@ -441,12 +447,15 @@ def main(args=None) -> int:
         print(f"register_node: invalid parameter: {exc}", flush=True)
         rclpy.try_shutdown()
         return 1
+    executor = MultiThreadedExecutor(num_threads=2)
     try:
-        rclpy.spin(node, MultiThreadedExecutor(num_threads=2))
+        rclpy.spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.stop()
+        # in this order: no callback or registration may use an entity destroy_node frees
+        node.stop(STOP_WAIT_S)
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
