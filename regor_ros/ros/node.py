@@ -43,7 +43,7 @@ from .transport import use_large_data_profile
 from ..tools.map_file import load_map_file
 
 WARN_THROTTLE_S = 5.0
-STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration under way is abandoned)
+STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
 QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
 
 
@@ -320,6 +320,8 @@ class RegisterNode(Node):
             self.health.preparing_map = False
         seconds = time.perf_counter() - start
         with self._lock:
+            if self._stopping:  # the node's publishers are going away
+                return
             self._prepared_target, self._prepared_key, self._map_frame = prepared, key, frame
             if prepared is not None:
                 self.stats["map_preparations"] += 1
@@ -427,8 +429,8 @@ class RegisterNode(Node):
                                  else f"pose published although rejected: {result.reason}")
 
     def stop(self, timeout: float) -> None:
-        """Stop the worker: wait up to timeout for it to finish (a registration under way is
-        abandoned; it publishes nothing once stopping) and wake a waiting relocalize call."""
+        """Stop the worker: wait up to timeout for it to finish (a registration or map preparation
+        under way is abandoned; it publishes nothing once stopping) and wake a waiting relocalize call."""
         with self._lock:
             self._stopping = True
             self._lock.notify_all()
