@@ -8,6 +8,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
+from regor_ros.ros.messages import matrix_from_pose
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import pose_to_matrix
 
@@ -39,6 +40,12 @@ def test_registers_a_real_pair_published_to_it(pairs_node, ros):
     lines = [m for m in markers[1:] if m.ns in ("inliers", "outliers")]
     assert lines and all(m.header.frame_id == "map" for m in lines)
     assert sum(len(m.points) // 2 for m in lines) <= 500
+    # the search's distinct places, best supported first: the published pose's place among them
+    assert ros.spin_until(lambda: ros.candidates, 5.0)
+    candidates = ros.candidates[-1]
+    assert candidates.header.frame_id == "map" and 1 <= len(candidates.poses) <= 5
+    assert any(is_success(matrix_from_pose(p), T_gt, kind) for p in candidates.poses)
+    assert status["candidate_margin"] is None or status["candidate_margin"] >= 1.0
 
 
 def test_parameters_are_declared_with_descriptions_and_ranges(pairs_node, ros):

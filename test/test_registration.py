@@ -232,19 +232,20 @@ def test_plane_refinement_brings_a_sparse_scan_pair_from_a_metre_off_to_centimet
     src, tgt = np.load(folder / "scan_000005" / "scan.npy"), np.load(folder / "scan_000057" / "scan.npy")
     T_gt = np.linalg.inv(np.loadtxt(folder / "scan_000057" / "gt.txt")) @ np.loadtxt(folder / "scan_000005" / "gt.txt")
     cfg = RegorConfig.preset("outdoor")
-    point = register(src, tgt, cfg)
-    plane = register(src, tgt, cfg.replace({"estimation.plane_refinement": True}))
+    point = register(src, tgt, cfg.replace({"estimation.plane_refinement": False}))
+    plane = register(src, tgt, cfg)
     assert plane.accepted and is_success(plane.transform, T_gt, "outdoor")
     assert translation_error(plane.transform, T_gt) < 0.2 < translation_error(point.transform, T_gt)
     assert rotation_error_deg(plane.transform, T_gt) < rotation_error_deg(point.transform, T_gt)
 
 
-def test_a_plane_refinement_that_slides_beyond_tau_e_keeps_the_point_level_pose(kitchen_pair, monkeypatch):
-    """The point-level pose is known to within tau_e; a refinement that leaves it found another."""
+def test_a_plane_refinement_that_slides_off_the_surfaces_keeps_the_point_level_pose(kitchen_pair, monkeypatch):
+    """A refinement is kept only when it puts at least as many keypoints on the target's surfaces
+    (within a voxel) as the point-level pose: one that slid 2 tau_e away found another pose."""
     import regor_ros.core.pipeline as pipeline
     src, tgt, _, _ = kitchen_pair
     cfg = RegorConfig()
-    point = register(src, tgt, cfg)
+    point = register(src, tgt, cfg.replace({"estimation.plane_refinement": False}))
     slid = np.eye(4)
     slid[:3, 3] = [2 * cfg.estimation.inlier_threshold, 0.0, 0.0]
     monkeypatch.setattr(pipeline, "plane_refine", lambda T, *args, **kwargs: slid @ T)

@@ -103,10 +103,10 @@ class EstimationConfig:
     max_iterations: int = _param(20, "iterations of the point-level refinement", 0, 1000)
     compare_initial_pose: bool = _param(True, "also refine the initial stage's pose and keep whichever ends "
                                         "with more point-level inliers (guards against regeneration drift; deviation)")
-    plane_refinement: bool = _param(False, "then refine point-to-plane, the threshold halved from tau_e down to "
-                                    "the voxel size; a move beyond tau_e keeps the point-level pose (sparse "
-                                    "scans' point-level poses stay decimetres off; deviation, opt-in until "
-                                    "every benchmark is rerun with it)")
+    plane_refinement: bool = _param(True, "then refine point-to-plane, the threshold halved from tau_e down to "
+                                    "the voxel size, so the gate judges the pose at the keypoints' resolution; "
+                                    "kept when it puts at least as many keypoints within a voxel of the target "
+                                    "(sparse scans' point-level poses stay decimetres off; deviation)")
 
 
 @dataclass
@@ -123,6 +123,15 @@ class AcceptanceConfig:
                                               "too little of the scan on what the map holds): wrong poses visibility "
                                               "would reject get through on features alone (calibrated with the "
                                               "viewpoints dropped: regor-calibrate-gate)", 0, 1000000)
+    min_surface_agreement: float = _param(0.5, "fewest of the overlap (source keypoints within "
+                                          "estimation.inlier_threshold of the target) that must lie within one "
+                                          "voxel of it: a right pose puts its overlap on the target's surfaces, a "
+                                          "wrong one anywhere up to the threshold, however dense the target "
+                                          "(a majority rule, not fitted; 0 = off)", 0.0, 1.0)
+    max_false_alarms: float = _param(1.0, "most poses, among those the search tried, expected to gather the "
+                                     "pose's independent feature support by chance (a-contrario; the target's "
+                                     "size and the matches set the chance; 1 is the usual bound, not fitted)",
+                                     1e-12, 1e12)
     max_free_space_violation: float = _param(0.06, "largest fraction of one cloud's keypoints that may sit in space the other "
                                              "cloud's sensor saw through, or, for a map, in front of the map's surfaces seen from the pose (free-space check; 1 = off; "
                                              "calibrated: regor-calibrate-gate)", 0.0, 1.0)
@@ -130,6 +139,9 @@ class AcceptanceConfig:
                                       "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
     free_space_margin_ratio: float = _param(0.02, "range-proportional part of the free-space margin (depth noise grows "
                                             "with range)", 0.0, 1.0)
+    free_space_sigmas: float = _param(3.0, "the free-space margin also grows by this many standard deviations of "
+                                      "the pose's own uncertainty at each point (its covariance: worst "
+                                      "translation plus range times worst turn); 0 = off", 0.0, 10.0)
     max_opposite_sides: float = _param(0.5, "largest fraction of the matched surface that the two sensors may have seen "
                                        "from opposite sides (thin objects are; a majority means the clouds are back to "
                                        "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)

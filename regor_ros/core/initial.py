@@ -23,6 +23,9 @@ from .matching import FeatureMatches
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
+# hypotheses closer than this are one candidate place (the refinement pulls one onto the other)
+DISTINCT_ANGLE_DEG = 10.0
+DISTINCT_TRANSLATION_FRACTION = 5.0  # of the inlier threshold
 SUPPORT_ROWS = 256  # source keypoints that rank hypotheses by candidate support
 
 
@@ -31,6 +34,8 @@ class InitialResult:
     transform: np.ndarray     # T_m, post-refined on all correspondences
     inliers: np.ndarray       # (N_c,) bool: correspondences within tau of T_m (G0)
     hypotheses_scored: int    # distinct hypotheses compared by FS-TCD
+    hypotheses_tried: int     # poses the search generated and ranked (one per seed)
+    candidates: list          # [(pose, FS-TCD support)] of distinct places, best supported first
 
 
 def select_seeds(confidence: np.ndarray, points: np.ndarray, radius: float,
@@ -214,4 +219,17 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     inliers = agreeing(T_m, src, tgt, cfg.inlier_threshold)
     if not inliers.any():
         inliers = agreeing(T_ic, src, tgt, cfg.inlier_threshold)
-    return InitialResult(T_m, inliers, len(kept))
+    return InitialResult(T_m, inliers, len(kept), len(hypotheses),
+                         distinct_candidates(kept, fitnesses, cfg.inlier_threshold))
+
+
+def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:
+    """[(pose, support)] best first, each farther than DISTINCT_ANGLE_DEG or
+    DISTINCT_TRANSLATION_FRACTION x tau from every better-supported one: the places the search
+    found, so a user sees how far ahead the winner is (a road or a row of trees offers several)."""
+    out: list = []
+    for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):
+        if not any(poses_close(poses[i], kept, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+                   for kept, _ in out):
+            out.append((poses[i], int(supports[i])))
+    return out

@@ -11,6 +11,7 @@ import numpy as np
 from .config import RegorConfig
 from .estimate import (agreeing, inliers_at, plane_refine, plane_thresholds, point_refine,
                        pose_covariance, poses_close, weighted_kabsch)
+from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
 from .initial import initial_stage
@@ -41,6 +42,15 @@ class Correspondences:
 
 
 @dataclass
+class Candidate:
+    """A distinct pose the search found, with its FS-TCD support (feature-verified matches that
+    agree in length): the winner's margin over the runner-up says how unique the place is."""
+
+    transform: np.ndarray   # 4x4 T_target_source
+    support: int
+
+
+@dataclass
 class RegistrationResult:
     transform: np.ndarray          # 4x4 T_target_source: maps source points into the target frame
     accepted: bool                 # passed the quality gate (acceptance config)
@@ -61,6 +71,15 @@ class RegistrationResult:
     visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
     rivals: List[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
     ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
+    evidence: Optional[Evidence] = None  # the pose's support against chance (core/evidence.py)
+    candidates: List[Candidate] = field(default_factory=list)  # distinct places found, best supported first
+
+    @property
+    def candidate_margin(self) -> Optional[float]:
+        """The best candidate's support over the runner-up's (None with fewer than two)."""
+        if len(self.candidates) < 2:
+            return None
+        return self.candidates[0].support / max(self.candidates[1].support, 1)
 
     def summary(self) -> Dict:
         """The verdict and quality figures as plain values, for logs, status messages and JSON."""
@@ -74,6 +93,8 @@ class RegistrationResult:
             "attempts": self.attempts, "visibility": self.visibility.as_dict(),
             "ambiguity": self.ambiguity,
             "rivals": [dataclasses.asdict(r) for r in self.rivals],
+            "evidence": None if self.evidence is None else self.evidence.as_dict(),
+            "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,
         }
 
 
@@ -227,7 +248,8 @@ def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResu
     return dataclasses.replace(
         result, transform=result.transform @ turn,
         initial=dataclasses.replace(result.initial, source=result.initial.source @ back),
-        final=dataclasses.replace(result.final, source=result.final.source @ back))
+        final=dataclasses.replace(result.final, source=result.final.source @ back),
+        candidates=[Candidate(c.transform @ turn, c.support) for c in result.candidates])
 
 
 def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: RegorConfig,
@@ -279,7 +301,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
 
     refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config, prior)
     if config.estimation.plane_refinement:
-        refined = _plane_refine(refined.transform, src_cloud, tgt_cloud, config, prior)
+        refined = _plane_refine(refined, src_cloud, tgt_cloud, config, prior)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
@@ -292,8 +314,11 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
+    support = evidence(T, src_cloud.points, tgt_cloud.points, tgt_cloud.normals, tgt_cloud.tree, init_src, initial_inlier,
+                       config.estimation.inlier_threshold, config.features.voxel_size,
+                       config.initial.inlier_threshold, config.features.fpfh_radius, initial.hypotheses_tried)
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
-                     num_feature_inliers, covariance, refined.target_index, config, prior)
+                     num_feature_inliers, covariance, refined.target_index, support, config, prior)
     lap("verification")
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
@@ -303,7 +328,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
-        rivals=verdict.rivals, ambiguity=verdict.ambiguity)
+        rivals=verdict.rivals, ambiguity=verdict.ambiguity, evidence=support,
+        candidates=[Candidate(pose, support) for pose, support in initial.candidates])
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
@@ -313,17 +339,20 @@ def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config:
                         prior and prior.clamp)
 
 
-def _plane_refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
                   prior: Optional[GravityPrior]):
     """The point-to-plane refinement of the estimator's pose, and its inliers within tau_e. The
-    estimator's pose is known to within tau_e: a refinement that leaves that neighbourhood slid
-    to another pose (along a corridor, onto a repeated facade), so the estimator's is kept."""
-    est = config.estimation
+    refined pose is kept when it puts at least as many source keypoints within one voxel of the
+    target as the estimator's: the judge is the data at the keypoints' resolution, so a near
+    miss a few degrees off is brought in, and a slide along a corridor or onto a repeated facade
+    that fits worse is not taken."""
+    est, voxel = config.estimation, config.features.voxel_size
+    T = refined.transform
     fine = plane_refine(T, source.points, target.points, target.normals, target.tree,
-                        plane_thresholds(est.inlier_threshold, config.features.voxel_size), prior and prior.clamp)
-    if not poses_close(fine, T, SAME_POSE_DEG, est.inlier_threshold):
-        fine = T
-    return inliers_at(fine, source.points, target.tree, est.inlier_threshold)
+                        plane_thresholds(est.inlier_threshold, voxel), prior and prior.clamp)
+    on_surface = [len(inliers_at(pose, source.points, target.tree, voxel).source_index) for pose in (T, fine)]
+    return inliers_at(fine, source.points, target.tree, est.inlier_threshold) if on_surface[1] >= on_surface[0] \
+        else refined
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,

@@ -2,6 +2,9 @@
 
 A wrong pose published with confidence is the worst outcome, so a pose is accepted only when
 - enough keypoints agree with it (inliers, fitness) and they fix all six degrees of freedom;
+- its overlap lies on the target's surfaces at the keypoints' resolution, and its feature support
+  is more than chance gives in a search of this size (core/evidence.py: neither depends on how
+  large the target is);
 - enough of the original feature matches agree with it (geometry alone aligns unrelated planes),
   more when free space cannot be checked from both sides (a map has no viewpoint);
 - neither cloud puts surfaces into space the other sensor saw through, and the surface both saw
@@ -22,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix, transform_points
+from .evidence import Evidence
 from .features import PreparedCloud
 from .gravity import GravityPrior
 from .metrics import rotation_error_deg
@@ -50,16 +54,34 @@ class Verdict:
     visibility: VisibilityFigures
     rivals: List[Rival] = field(default_factory=list)
     ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
+    evidence: Optional[Evidence] = None
+
+
+def pose_slack(covariance: Optional[np.ndarray], sigmas: float):
+    """How far the pose may misplace a point at distance r from the source's origin, as a
+    function of r: ``sigmas`` standard deviations of the covariance's worst translation plus r
+    times its worst turn (None: no covariance, no slack)."""
+    if covariance is None or sigmas <= 0:
+        return None
+    translation = np.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3])[-1], 0.0))
+    turn = np.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:])[-1], 0.0))
+    if max(translation, turn) >= np.sqrt(UNCONSTRAINED_VARIANCE):
+        return None  # a free direction: the structural check rejects the pose anyway
+    return lambda r: sigmas * (translation + turn * r)
 
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                       gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None) -> VisibilityFigures:
+                       gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None,
+                       covariance: Optional[np.ndarray] = None) -> VisibilityFigures:
     """The visibility figures of T_target_source; ``matched_index`` lists the target keypoints of
     its inlier pairs. Each side is a cloud's sensors (their range images), or, for a cloud with no
-    viewpoint (a map), the map seen from the other cloud's sensors placed by the pose."""
+    viewpoint (a map), the map seen from the other cloud's sensors placed by the pose. With the
+    pose's ``covariance`` each point's free-space margin grows by the pose's uncertainty there
+    (acceptance.free_space_sigmas)."""
     T_inv = np.linalg.inv(T)
-    source_side = _side(T_inv, source, target, gate, near_only=True)
-    target_side = _side(T, target, source, gate, near_only=False)
+    slack = pose_slack(covariance, gate.free_space_sigmas)
+    source_side = _side(T_inv, source, target, gate, near_only=True, slack=slack)
+    target_side = _side(T, target, source, gate, near_only=False, slack=slack)
     sides = None
     if matched_index is not None and source.views and target.views:
         points, normals = target.points[matched_index], target.normals[matched_index]
@@ -71,11 +93,18 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
 
 
 def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, gate: AcceptanceConfig,
-          near_only: bool):
+          near_only: bool, slack=None):
     """(fraction of ``other``'s keypoints inside ``seer``'s seen free space or None, how many
     landed on seen bins, fraction of them seen: for a map side). ``near_only``: test only the
-    other's keypoints within the seer's sensor range (the other may be a large map)."""
+    other's keypoints within the seer's sensor range (the other may be a large map). ``slack``
+    (pose_slack) widens each point's margin by its distance from the source's origin."""
     margin, ratio, min_seen = gate.free_space_margin, gate.free_space_margin_ratio, gate.free_space_min_seen
+    # the source frame's origin in the seer's frame: the seer is the source when near_only
+    source_origin = np.zeros(3) if near_only else T_seer_other[:3, 3]
+
+    def widen(points: np.ndarray):
+        return 0.0 if slack is None else slack(np.linalg.norm(points - source_origin, axis=1))
+
     if seer.views:
         points = other.points
         if near_only:
@@ -85,14 +114,15 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
                 near.update(other.tree.query_ball_point(transform_points(to_other, view.viewpoint[None])[0],
                                                         view.max_range + margin))
             points = other.points[np.array(sorted(near), dtype=np.int64)]
-        seen, inside = seen_and_inside(seer.views, transform_points(T_seer_other, points), margin, ratio)
+        points = transform_points(T_seer_other, points)
+        seen, inside = seen_and_inside(seer.views, points, margin, ratio, widen(points))
         return (inside / seen if seen >= min_seen else None), seen, None
     if seer.map_view is not None and other.views:
         # the map seen from where the pose puts the other cloud's sensors, out to their reach
         points = transform_points(T_seer_other, other.points)
         reach = max(view.max_range for view in other.views) + margin
         images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach)
-        seen, inside = seen_and_inside(images, points, margin, ratio)
+        seen, inside = seen_and_inside(images, points, margin, ratio, widen(points))
         fraction_seen = seen / max(len(points), 1)
         counts = seen >= min_seen and fraction_seen >= gate.map_view_min_seen
         return (inside / seen if counts else None), seen, fraction_seen
@@ -108,15 +138,16 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,
            fitness: float, matches: tuple, num_feature_inliers: int, covariance: np.ndarray,
-           overlap_index: np.ndarray, config: RegorConfig,
+           overlap_index: np.ndarray, support: Evidence, config: RegorConfig,
            prior: Optional[GravityPrior] = None) -> Verdict:
     """Run every check on the pose T_target_source; the reason names the first that fails.
     ``matches`` are the feature matches (source, target points), ``num_feature_inliers`` how many
     of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
-    keypoints of the pose's inlier pairs (the overlap). With a gravity ``prior`` the pose must
-    keep to it, and so must a symmetric rival to count."""
+    keypoints of the pose's inlier pairs (the overlap); ``support`` the pose's evidence against
+    chance. With a gravity ``prior`` the pose must keep to it, and so must a symmetric rival to
+    count."""
     gate = config.acceptance
-    visibility = visibility_figures(T, source, target, gate, overlap_index)
+    visibility = visibility_figures(T, source, target, gate, overlap_index, covariance)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
     if not reason and prior is not None:
         reason = prior.failure(T, source, target)
@@ -126,8 +157,9 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
         rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
                                   source, target, config, prior)
         ambiguous = ambiguity(rivals, gate.max_free_space_violation, gate.max_opposite_sides)
-        reason = _evidence_failure(num_feature_inliers, visibility, ambiguous, gate)
-    return Verdict(not reason, reason, visibility, rivals, ambiguous)
+        reason = _chance_failure(support, gate) or _evidence_failure(
+            num_feature_inliers, visibility, ambiguous, gate)
+    return Verdict(not reason, reason, visibility, rivals, ambiguous, support)
 
 
 def half_turns(points: np.ndarray) -> np.ndarray:
@@ -187,6 +219,20 @@ def _structural_failure(num_inliers: int, fitness: float, covariance: np.ndarray
         return "the inliers do not constrain all six degrees of freedom (plane or line?)"
     if fitness < gate.min_fitness:
         return f"fitness {fitness:.3f} below acceptance.min_fitness={gate.min_fitness}"
+    return ""
+
+
+def _chance_failure(support: Evidence, gate: AcceptanceConfig) -> str:
+    """The checks whose evidence is scaled to chance in this search (core/evidence.py)."""
+    if support.surface_agreement < gate.min_surface_agreement:
+        return (f"only {100 * support.surface_agreement:.0f} % of the overlap lies on the target's "
+                f"surfaces at the keypoint spacing (acceptance.min_surface_agreement="
+                f"{gate.min_surface_agreement}): the clouds touch, they do not coincide")
+    if support.log10_false_alarms > np.log10(gate.max_false_alarms):
+        return (f"chance alone gives {support.independent_agreeing} independent agreeing feature "
+                f"matches in about 10^{support.log10_false_alarms:.1f} of the poses this search tried "
+                f"(acceptance.max_false_alarms={gate.max_false_alarms}): too little feature support "
+                "for a target this size")
     return ""
 
 

@@ -16,7 +16,9 @@ per bin. It is read conservatively, so that a correct pose is not blamed for sen
 - a bin with no return is unknown, never free (glass, black surfaces, sky, beyond range);
 - a point is in free space only when it is nearer than the free depth by a margin that grows with
   range (``margin + margin_ratio * depth``): keypoints are voxel centroids and depth noise grows
-  with distance.
+  with distance;
+- and by the pose's own uncertainty at that point (``slack``): a pose known to within a degree
+  places a point 30 m out half a metre off, so a correct pose is not blamed for its own error.
 """
 from __future__ import annotations
 
@@ -98,25 +100,27 @@ class RangeImage:
         seen, inside = self.classify(points, margin, margin_ratio)
         return int(seen.sum()), int(inside.sum())
 
-    def classify(self, points: np.ndarray, margin: float, margin_ratio: float):
-        """Per point: (lands on a seen bin, lies inside seen free space)."""
+    def classify(self, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
+        """Per point: (lands on a seen bin, lies inside seen free space); ``slack`` (a number or
+        one per point) widens the margin by how far the pose may have misplaced each point."""
         offsets = points - self.viewpoint
         ranges = np.linalg.norm(offsets, axis=1)
         usable = ranges > MIN_RANGE
+        slack = np.broadcast_to(np.asarray(slack, dtype=np.float64), (len(points),))[usable]
         seen, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
         ranges, index = _bins(offsets[usable], self.resolution_deg, self.free_depth.shape[1])
         depth = self.free_depth.ravel()[index]
         seen[usable] = depth > 0
-        inside[usable] = (depth > 0) & (ranges < depth - margin - margin_ratio * depth)
+        inside[usable] = (depth > 0) & (ranges < depth - margin - margin_ratio * depth - slack)
         return seen, inside
 
 
-def seen_and_inside(images, points: np.ndarray, margin: float, margin_ratio: float):
+def seen_and_inside(images, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
     """(points on a bin any image has seen, of those the ones inside any image's free space): a
     cloud seen from several viewpoints (scans fused along odometry, a map's trajectory)."""
     seen, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
     for image in images:
-        s, i = image.classify(points, margin, margin_ratio)
+        s, i = image.classify(points, margin, margin_ratio, slack)
         seen |= s
         inside |= i
     return int(seen.sum()), int(inside.sum())

@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, PoseWithCovarianceStamped
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
@@ -40,6 +40,15 @@ def pose_with_covariance(T: np.ndarray, covariance: np.ndarray, header: Header) 
     msg.pose.pose = pose_from_matrix(T)
     msg.pose.covariance = [float(v) for v in covariance.reshape(-1)]
     return msg
+
+
+def candidate_poses(result: RegistrationResult, header: Header, limit: int, T_sensor_frame=None) -> PoseArray:
+    """The search's distinct candidate poses, best supported first (at most ``limit``), each of
+    the frame ``T_sensor_frame`` places relative to the sensor (the base, for Nav2) when given."""
+    poses = [c.transform for c in result.candidates[:limit]]
+    if T_sensor_frame is not None:
+        poses = [T @ T_sensor_frame for T in poses]
+    return PoseArray(header=header, poses=[pose_from_matrix(T) for T in poses])
 
 
 def _line_marker(header: Header, ident: int, name: str, colour: ColorRGBA,

@@ -19,7 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.exceptions import ParameterException
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -36,7 +36,8 @@ from .diagnostics import Health, diagnostic_array
 from .imu_up import ImuUp
 from .initial_guess import search_region
 from .input_qos import InputSubscription, fixed_profile
-from .messages import correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance, status_message
+from .messages import (candidate_poses, correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance,
+                       status_message)
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 from .transport import use_large_data_profile
@@ -107,6 +108,7 @@ class RegisterNode(Node):
         self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
         self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
+        self.candidates_pub = self.create_publisher(PoseArray, "candidates", 10)
         self.status_pub = self.create_publisher(String, "status", 10)
         self.aligned_pub = self.create_publisher(PointCloud2, "aligned_cloud", 1)
         self.map_pub = self.create_publisher(PointCloud2, "map_cloud", fixed_profile("transient_local"))
@@ -410,6 +412,8 @@ class RegisterNode(Node):
         self.status_pub.publish(status_message(result, extra))
         self.marker_pub.publish(correspondence_markers(result, header, settings.max_markers,
                                                        settings.marker_line_width))
+        base = np.linalg.inv(settings.base_extrinsic()) if settings.base_frame else None
+        self.candidates_pub.publish(candidate_poses(result, header, settings.max_candidates, base))
         figures = (f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
                    f"{result.timings['total']:.2f} s")
         if not result.accepted:
@@ -419,8 +423,8 @@ class RegisterNode(Node):
         else:
             self.get_logger().info(f"pose accepted: {figures}")
         T, covariance = result.transform, result.covariance
-        if settings.base_frame:  # the robot's pose, for Nav2: the sensor's composed with its mounting
-            T, covariance = attached_pose(T, covariance, np.linalg.inv(settings.base_extrinsic()))
+        if base is not None:  # the robot's pose, for Nav2: the sensor's composed with its mounting
+            T, covariance = attached_pose(T, covariance, base)
         self.pose_pub.publish(pose_stamped(T, header))
         self.pose_cov_pub.publish(pose_with_covariance(T, covariance, header))
         if settings.publish_aligned_cloud:

@@ -42,6 +42,8 @@ class NodeSettings:
     target_qos: str = _param("auto", "QoS of target_cloud: auto, sensor_data, reliable, or transient_local "
                              "(see source_qos)")
     max_markers: int = _param(500, "most correspondence lines published on correspondences", 0, 100000)
+    max_candidates: int = _param(5, "most distinct candidate poses published on candidates (the search's places, "
+                                 "best supported first, after every registration); 0 = none", 0, 1000)
     marker_line_width: float = _param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
     publish_aligned_cloud: bool = _param(False, "publish the source cloud moved into the target frame "
                                          "on aligned_cloud")

@@ -15,7 +15,7 @@ from typing import List, Optional
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseArray, PoseStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -49,6 +49,8 @@ class PairClient(Node):
         self.statuses: List[dict] = []
         self.create_subscription(PoseStamped, "pose", self._on_pose, 10)
         self.create_subscription(MarkerArray, "correspondences", self.markers.append, 10)
+        self.candidates: List[PoseArray] = []
+        self.create_subscription(PoseArray, "candidates", self.candidates.append, 10)
         self.create_subscription(String, "status", lambda m: self.statuses.append(json.loads(m.data)), 10)
 
     def _on_pose(self, msg: PoseStamped) -> None:

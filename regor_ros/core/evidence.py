@@ -1,0 +1,115 @@
+"""How much of a pose's support could chance explain? Figures that scale with the search.
+
+A fixed count of agreeing feature matches, or a fixed fraction of keypoints within the search
+tolerance, means one thing between two scans and another against a map many times larger: there
+a wrong pose finds surfaces near every keypoint and a few matches that agree by chance. Two
+figures that do not depend on how large the target is:
+
+- **Surface agreement at the sensor's resolution.** Of the source keypoints the pose brings
+  within the estimator's tolerance tau_e of the target (the overlap), the fraction within one
+  keypoint spacing (the voxel) of the target's surface. Under a right pose the overlap lies *on* the target's surfaces,
+  so nearly all of it (0.77-0.99 on the shared scan-to-map queries); under a wrong one its points
+  sit anywhere up to tau_e from them (0.19-0.62), however dense the map. Judged on the pose
+  refined at that resolution, so a right pose a degree off is not blamed for the search's step.
+- **False alarms of the feature support (a-contrario).** Neighbouring keypoints share most of
+  their FPFH neighbourhood, so agreeing matches are counted once per descriptor radius (the
+  independent ones). If the matches' targets were unrelated to their sources, each would agree
+  with a given pose with the probability that a random target keypoint lies within tau of a
+  given one (the target's own density: 1 / its size, for a map); the number of false alarms is
+  the hypotheses the search tried times the binomial tail of the observed count. More than one
+  expected false alarm means chance alone would have found that much support in this search.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import binom
+
+from .estimate import transform_points
+
+DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
+DENSITY_SEED = 0
+
+
+@dataclass
+class Evidence:
+    """The figures above for one pose."""
+
+    surface_agreement: float      # overlap within one voxel / overlap within tau_e (0 when no overlap)
+    overlap: int                  # source keypoints within tau_e of the target
+    independent_matches: int      # feature matches, one per descriptor radius of the source
+    independent_agreeing: int     # of those, the ones that agree with the pose
+    chance: float                 # probability that an unrelated match agrees with a pose
+    log10_false_alarms: float     # log10(hypotheses tried x binomial tail of the agreeing count)
+
+    def as_dict(self):
+        return dict(vars(self))
+
+
+def surface_agreement(T: np.ndarray, source_points: np.ndarray, target_points: np.ndarray,
+                      target_normals: np.ndarray, target_tree: cKDTree, tolerance: float, resolution: float):
+    """(fraction of the overlap within ``resolution`` of the target's surface, the overlap's
+    size): the overlap being the source keypoints ``T`` brings within ``tolerance`` of a target
+    keypoint, measured to that keypoint's tangent plane (a sparse scan samples a surface along
+    its lines: the nearest keypoint may be a voxel away along the surface, the surface is not)."""
+    moved = transform_points(T, source_points)
+    distances, nearest = target_tree.query(moved, distance_upper_bound=tolerance, workers=-1)
+    near = distances < tolerance
+    across = np.abs(np.einsum("ij,ij->i", moved[near] - target_points[nearest[near]], target_normals[nearest[near]]))
+    overlap = int(near.sum())
+    return (int((across < resolution).sum()) / overlap if overlap else 0.0), overlap
+
+
+def independent(points: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of ``points`` no two of which are closer than ``radius`` (greedy, in order): one
+    per descriptor neighbourhood."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    cell = np.floor(points / radius).astype(np.int64)
+    # one representative per cell of the radius, then the greedy rule among representatives
+    first = np.unique(cell, axis=0, return_index=True)[1]
+    first.sort()
+    candidates = points[first]
+    tree = cKDTree(candidates)
+    taken = np.zeros(len(candidates), dtype=bool)
+    keep = []
+    for i in range(len(candidates)):
+        if not taken[i]:
+            keep.append(i)
+            taken[tree.query_ball_point(candidates[i], radius)] = True
+    return first[np.array(keep, dtype=np.int64)]
+
+
+def chance_of_agreement(points: np.ndarray, tree: cKDTree, tolerance: float) -> float:
+    """Probability that a random keypoint of this cloud lies within ``tolerance`` of a given one
+    of them: the mean neighbour count over a seeded sample, over the cloud's size."""
+    rng = np.random.default_rng(DENSITY_SEED)
+    sample = points[rng.choice(len(points), min(DENSITY_SAMPLE, len(points)), replace=False)]
+    counts = tree.query_ball_point(sample, tolerance, return_length=True)
+    return float(np.mean(counts)) / len(points)
+
+
+def log10_false_alarms(agreeing: int, trials: int, chance: float, tests: int) -> float:
+    """log10 of the expected number of poses, among ``tests`` tried, that chance alone gives at
+    least ``agreeing`` of ``trials`` agreeing matches."""
+    if agreeing <= 0:
+        return float(np.log10(max(tests, 1)))
+    tail = binom.logsf(agreeing - 1, trials, min(chance, 1.0)) / np.log(10)
+    return float(np.log10(max(tests, 1)) + tail)
+
+
+def evidence(T: np.ndarray, source_points: np.ndarray, target_points: np.ndarray, target_normals: np.ndarray,
+             target_tree: cKDTree, match_source: np.ndarray, agree: np.ndarray, tolerance: float, resolution: float,
+             match_tolerance: float, descriptor_radius: float, hypotheses: int) -> Evidence:
+    """The figures of the pose ``T``: ``match_source`` are the feature matches' source keypoints,
+    ``agree`` which of them the pose brings within ``match_tolerance`` of their target;
+    ``hypotheses`` how many poses the search compared."""
+    agreement, overlap = surface_agreement(T, source_points, target_points, target_normals, target_tree,
+                                           tolerance, resolution)
+    matches = independent(match_source, descriptor_radius)
+    agreeing = independent(match_source[agree], descriptor_radius)
+    chance = chance_of_agreement(target_points, target_tree, match_tolerance)
+    return Evidence(agreement, overlap, len(matches), len(agreeing), chance,
+                    log10_false_alarms(len(agreeing), len(matches), chance, hypotheses))
