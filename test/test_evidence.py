@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
-from regor_ros.core.estimate import to_matrix
+from regor_ros.core.estimate import inliers_at, resolution_uncertainty, to_matrix
 from regor_ros.core.evidence import independent, log10_false_alarms
 from regor_ros.core.metrics import is_success
 from regor_ros.core.verification import visibility_figures
@@ -51,18 +51,20 @@ def test_a_right_pose_lies_on_the_maps_surfaces_and_its_support_is_beyond_chance
 
 def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncertainty_counts(avia_map):
     """Scans fused along odometry reach tens of metres: pitched by 2 deg, the far points move
-    about a metre, beyond the fixed margin; the pose's own covariance says it is known to about a
-    degree, so the check allows for it. A pose turned by 90 deg still fails."""
+    about a metre, beyond the fixed margin; at the keypoints' resolution, with these surfaces, a
+    right pose is known to about a degree (grid_covariance), so the check allows for it. A pose
+    turned by 90 deg still fails."""
     prepared, queries = avia_map
     query = queries["scan_000005"]
     fused = prepare_cloud(query.history, OUTDOOR, "scans")
-    covariance = register(fused, prepared, OUTDOOR).covariance
+    pairs = inliers_at(query.truth, fused.points, prepared.tree, OUTDOOR.estimation.inlier_threshold)
+    uncertainty = resolution_uncertainty(query.truth, fused.points[pairs.source_index], OUTDOOR.features.voxel_size)
     gate = OUTDOOR.acceptance
     pitched = query.truth @ to_matrix(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))
     assert visibility_figures(pitched, fused, prepared, gate).worst > gate.max_free_space_violation
-    assert visibility_figures(pitched, fused, prepared, gate, covariance=covariance).worst <= gate.max_free_space_violation
+    assert visibility_figures(pitched, fused, prepared, gate, uncertainty=uncertainty).worst <= gate.max_free_space_violation
     turned = query.truth @ to_matrix(Rotation.from_euler("z", 90.0, degrees=True).as_matrix(), np.zeros(3))
-    assert visibility_figures(turned, fused, prepared, gate, covariance=covariance).worst > 0.1
+    assert visibility_figures(turned, fused, prepared, gate, uncertainty=uncertainty).worst > 0.1
 
 
 def test_independent_matches_are_one_per_descriptor_radius():

@@ -213,6 +213,19 @@ def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
     return covariance + resolution_covariance(JtJ, gyration, voxel_size)
 
 
+def resolution_uncertainty(T: np.ndarray, source: np.ndarray, voxel_size: float):
+    """(translation [m], turn [rad]) standard deviations a *right* pose has at this voxel size,
+    with ``source`` (its inlier keypoints) as the lever: a voxel's sigma, and the turn that moves
+    their radius of gyration by as much. The free-space check allows for this much; not for the
+    residual term (a wrong pose's large residuals would buy it a wider margin) nor for weakly
+    constrained directions (free space is what can catch an error along them)."""
+    sigma = voxel_size / np.sqrt(12.0)
+    if len(source) == 0:
+        return sigma, 0.0
+    arm = transform_points(T, source) - T[:3, 3]
+    return sigma, sigma / max(np.sqrt(np.mean(np.sum(arm ** 2, axis=1))), voxel_size)
+
+
 def resolution_covariance(JtJ: np.ndarray, gyration: float, voxel_size: float) -> np.ndarray:
     """The pose's uncertainty from the voxel grid the registration works at, shaped by the
     surfaces. Along the direction the inliers' normals constrain best the position is known within

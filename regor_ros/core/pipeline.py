@@ -10,7 +10,7 @@ import numpy as np
 
 from .config import RegorConfig
 from .estimate import (agreeing, inliers_at, plane_refine, plane_thresholds, point_refine,
-                       pose_covariance, poses_close, weighted_kabsch)
+                       pose_covariance, poses_close, resolution_uncertainty, weighted_kabsch)
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
@@ -307,6 +307,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     final_tgt = tgt_cloud.points[refined.target_index]
     covariance = pose_covariance(T, final_src, final_tgt, tgt_cloud.normals[refined.target_index],
                                  config.features.voxel_size)
+    uncertainty = resolution_uncertainty(T, final_src, config.features.voxel_size)
     lap("estimation")
 
     num_inliers = len(final_src)
@@ -318,7 +319,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
                        config.estimation.inlier_threshold, config.features.voxel_size,
                        config.initial.inlier_threshold, config.features.fpfh_radius, initial.hypotheses_tried)
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
-                     num_feature_inliers, covariance, refined.target_index, support, config, prior)
+                     num_feature_inliers, covariance, uncertainty, refined.target_index, support, config, prior)
     lap("verification")
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(

@@ -18,7 +18,7 @@ and the calibration (regor-calibrate-gate), sees all of them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Optional
+from typing import List, Optional, Tuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -57,29 +57,26 @@ class Verdict:
     evidence: Optional[Evidence] = None
 
 
-def pose_slack(covariance: Optional[np.ndarray], sigmas: float):
+def pose_slack(uncertainty: Optional[Tuple[float, float]], sigmas: float):
     """How far the pose may misplace a point at distance r from the source's origin, as a
-    function of r: ``sigmas`` standard deviations of the covariance's worst translation plus r
-    times its worst turn (None: no covariance, no slack)."""
-    if covariance is None or sigmas <= 0:
+    function of r: ``sigmas`` standard deviations of ``uncertainty`` (translation [m], turn
+    [rad]) as sigma_t + r sigma_turn (None: no allowance)."""
+    if uncertainty is None or sigmas <= 0:
         return None
-    translation = np.sqrt(max(np.linalg.eigvalsh(covariance[:3, :3])[-1], 0.0))
-    turn = np.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:])[-1], 0.0))
-    if max(translation, turn) >= np.sqrt(UNCONSTRAINED_VARIANCE):
-        return None  # a free direction: the structural check rejects the pose anyway
+    translation, turn = uncertainty
     return lambda r: sigmas * (translation + turn * r)
 
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                        gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None,
-                       covariance: Optional[np.ndarray] = None) -> VisibilityFigures:
+                       uncertainty: Optional[Tuple[float, float]] = None) -> VisibilityFigures:
     """The visibility figures of T_target_source; ``matched_index`` lists the target keypoints of
     its inlier pairs. Each side is a cloud's sensors (their range images), or, for a cloud with no
     viewpoint (a map), the map seen from the other cloud's sensors placed by the pose. With the
-    pose's ``covariance`` each point's free-space margin grows by the pose's uncertainty there
-    (acceptance.free_space_sigmas)."""
+    pose's ``uncertainty`` (estimate.resolution_uncertainty) each point's free-space margin grows
+    by it there (acceptance.free_space_sigmas)."""
     T_inv = np.linalg.inv(T)
-    slack = pose_slack(covariance, gate.free_space_sigmas)
+    slack = pose_slack(uncertainty, gate.free_space_sigmas)
     source_side = _side(T_inv, source, target, gate, near_only=True, slack=slack)
     target_side = _side(T, target, source, gate, near_only=False, slack=slack)
     sides = None
@@ -138,16 +135,17 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,
            fitness: float, matches: tuple, num_feature_inliers: int, covariance: np.ndarray,
-           overlap_index: np.ndarray, support: Evidence, config: RegorConfig,
+           uncertainty: Tuple[float, float], overlap_index: np.ndarray, support: Evidence, config: RegorConfig,
            prior: Optional[GravityPrior] = None) -> Verdict:
     """Run every check on the pose T_target_source; the reason names the first that fails.
     ``matches`` are the feature matches (source, target points), ``num_feature_inliers`` how many
     of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
-    keypoints of the pose's inlier pairs (the overlap); ``support`` the pose's evidence against
-    chance. With a gravity ``prior`` the pose must keep to it, and so must a symmetric rival to
+    keypoints of the pose's inlier pairs (the overlap); ``uncertainty`` how well a right pose is
+    known at this resolution (estimate.resolution_uncertainty: the free-space check's allowance);
+    ``support`` the pose's evidence against chance. With a gravity ``prior`` the pose must keep to it, and so must a symmetric rival to
     count."""
     gate = config.acceptance
-    visibility = visibility_figures(T, source, target, gate, overlap_index, covariance)
+    visibility = visibility_figures(T, source, target, gate, overlap_index, uncertainty)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
     if not reason and prior is not None:
         reason = prior.failure(T, source, target)

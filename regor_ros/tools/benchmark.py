@@ -38,17 +38,19 @@ UP_Z = np.array([0.0, 0.0, 1.0])  # a level-mounted sensor's up in its own frame
 LEVEL_NOTE = (" Gravity prior (--level): every cloud's z axis is up (level-mounted sensors on ground "
               "vehicles); `-noprior` methods run without it.")
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
+EVIDENCE_COLUMNS = ["surface_agreement", "independent_agreeing", "log10_false_alarms", "candidate_margin"]
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total",
               *(f"seconds_{stage}" for stage in STAGES), "inliers_final",
               "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
-              "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals", "error"]
+              "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals",
+              *EVIDENCE_COLUMNS, "error"]
 
 
 def gate_columns(figures: dict) -> dict:
     """The verdict, the gate's figures and the stage timings of a RegistrationResult.summary(), as
     CSV columns (what regor-calibrate-gate reads)."""
-    visibility = figures["visibility"]
+    visibility, evidence = figures["visibility"], figures["evidence"] or {}
     return {**{f"seconds_{stage}": figures["timings"][stage] for stage in STAGES},
             "reason": figures["reason"], "num_inliers": figures["num_inliers"],
             "fitness": figures["fitness"], "feature_inliers": figures["feature_inliers"],
@@ -58,7 +60,9 @@ def gate_columns(figures: dict) -> dict:
             "ambiguity": figures["ambiguity"],
             "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
                                f"{r['violation']}:{r['opposite_sides']}:{r['distance_deg']:.1f}"
-                               for r in figures["rivals"])}
+                               for r in figures["rivals"]),
+            **{name: evidence.get(name) for name in EVIDENCE_COLUMNS[:3]},
+            "candidate_margin": figures["candidate_margin"]}
 
 
 def load_pairs(folder: Path, name_filter: Optional[str]):

@@ -32,7 +32,7 @@ from .peers import NO_PRIOR, PLANE
 from ..core.estimate import to_matrix
 from ..core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success, rotation_error_deg, translation_error
 from .map_file import load_map_file, read_trajectory, write_trajectory
-from .benchmark import STAGES, gate_columns, selected, write_results
+from .benchmark import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
@@ -43,7 +43,7 @@ MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_k
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
               *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "num_inliers",
               "fitness", "feature_inliers", "free_space_source", "free_space_target", "opposite_sides",
-              "map_seen", "ambiguity", "rivals", "error_sigmas", "reason", "error"]
+              "map_seen", "ambiguity", "rivals", *EVIDENCE_COLUMNS, "error_sigmas", "reason", "error"]
 TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 SCALING_QUERIES = 10  # queries registered at each map size (the median of 5 moved by 0.1 s between runs)
 
