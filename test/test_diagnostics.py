@@ -9,7 +9,7 @@ SUMMARY = {"accepted": False, "reason": "only 12 feature matches agree with the 
 
 
 def status(**state):
-    return diagnostic_status(Health(**state), "/register_node")
+    return diagnostic_status(Health(**{"lifecycle": "active", **state}), "/register_node")
 
 
 def test_each_state_has_its_level_and_reason():
@@ -35,3 +35,12 @@ def test_map_mode_reports_the_prepared_map():
                       map_info={"map_points": 207000, "map_keypoints": 42687, "map_preparation_seconds": 1.6})
     values = {kv.key: kv.value for kv in prepared.values}
     assert values["map_keypoints"] == "42687" and values["map_preparation_seconds"] == "1.6"
+
+
+def test_lifecycle_states_and_a_map_file_say_what_the_node_is_doing():
+    failed = status(lifecycle="configure failed: map_file not usable: /maps/x.pcd: no such file")
+    assert failed.level == DiagnosticStatus.ERROR and "no such file" in failed.message
+    waiting = status(lifecycle="unconfigured")
+    assert waiting.level == DiagnosticStatus.WARN and "unconfigured" in waiting.message
+    from_file = status(map_from_file=True)
+    assert "source_cloud" in from_file.message and "target_cloud" not in from_file.message

@@ -86,3 +86,26 @@ def test_cache_off_and_a_missing_file(map_files, tmp_path):
     assert off.info["map_cache"] == "off" and "map_cache_file" not in off.info
     with pytest.raises(CloudFileError, match="no such file"):
         load_map_file(tmp_path / "nowhere.pcd", config)
+
+
+def test_what_is_not_plausibly_a_map_is_refused_with_what_was_read(map_files, tmp_path):
+    """A trajectory given as the map, random bytes as a KITTI .bin, and a path of points: each
+    gets an error naming the file and what it holds, never a cache file."""
+    from regor_ros.tools.map_file import read_map
+    features = RegorConfig.preset("outdoor").features
+    map_file, trajectory_file, _, _ = map_files
+    as_text = tmp_path / "trajectory.txt"
+    as_text.write_text(trajectory_file.read_text())
+    with pytest.raises(CloudFileError, match="TUM trajectory"):
+        load_map_file(as_text, RegorConfig.preset("outdoor"))
+    assert not list(tmp_path.glob("*.regor-cache.npz"))
+    garbage = tmp_path / "random.bin"
+    garbage.write_bytes(np.random.default_rng(0).bytes(100_000))
+    with pytest.raises(CloudFileError, match="NaN, infinite or beyond"):
+        read_map(garbage, features)
+    path = tmp_path / "path.npy"
+    t = np.linspace(0.0, 60.0, 600)
+    np.save(path, np.c_[t, 5 * np.sin(t / 10), np.zeros_like(t)])
+    with pytest.raises(CloudFileError, match="a line gives 6"):
+        read_map(path, features)
+    assert len(read_map(map_file, features)) > 1000

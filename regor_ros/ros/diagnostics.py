@@ -2,7 +2,8 @@
 
 Localization stacks watch /diagnostics (rqt_robot_monitor, diagnostic aggregators), not a JSON
 string. One status, refreshed at a steady rate: OK while the last pose was published, WARN while
-no input has arrived, the map is still being prepared or the last pose was withheld (with the
+the node is not active (ERROR when its configure failed: the reason), no input has arrived (on
+source_cloud alone when the map is a file), the map is still being prepared or the last pose was withheld (with the
 gate's reason) or a malformed cloud arrived, ERROR when the last input could not be registered.
 """
 from __future__ import annotations
@@ -26,6 +27,8 @@ class Health:
     counters: Dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
     map_info: Dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
     inputs: Dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
+    lifecycle: str = "unconfigured"        # the node's lifecycle state, or why configure failed
+    map_from_file: bool = False            # the target is a map file, not target_cloud
 
 
 def _value(v) -> str:
@@ -35,9 +38,14 @@ def _value(v) -> str:
 def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
     """The status and its key values for the current health."""
     level, message = DiagnosticStatus.OK, "pose published"
-    missing = [topic for topic in ("source", "target") if not health.counters.get(f"{topic}_clouds")]
+    inputs = ("source",) if health.map_from_file else ("source", "target")
+    missing = [topic for topic in inputs if not health.counters.get(f"{topic}_clouds")]
     summary = health.last_summary
-    if health.last_error:
+    if health.lifecycle.startswith("configure failed"):
+        level, message = DiagnosticStatus.ERROR, health.lifecycle
+    elif health.lifecycle != "active":
+        level, message = DiagnosticStatus.WARN, f"{health.lifecycle}: not registering"
+    elif health.last_error:
         level, message = DiagnosticStatus.ERROR, f"last input not registered: {health.last_error}"
     elif health.last_bad_input:
         level, message = DiagnosticStatus.WARN, f"bad input: {health.last_bad_input}"
@@ -49,7 +57,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
-    values = {**health.counters, **health.inputs, **health.map_info}
+    values = {"lifecycle": health.lifecycle, **health.counters, **health.inputs, **health.map_info}
     if summary is not None:
         visibility = summary["visibility"]
         values.update({

@@ -6,7 +6,8 @@ other hand, never matches a best-effort publisher, and a transient-local one nev
 volatile publisher. So ``auto`` asks for the most every publisher on the topic offers: reliable
 when all of them are reliable, transient local when all of them are (a latched map), best effort
 and volatile otherwise. It is decided when the first publisher appears and again whenever the
-publishers' offer changes; the explicit kinds stay fixed.
+publishers' offer changes; the explicit kinds stay fixed. Until then an ``auto`` input listens
+best effort and volatile (what any publisher can match), so it shows in the node's graph.
 """
 from __future__ import annotations
 
@@ -50,6 +51,10 @@ def describe(profile: Optional[QoSProfile]) -> str:
     return reliability + durability
 
 
+UNDECIDED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=AUTO_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)  # what an auto input listens with before any publisher
+
+
 class InputSubscription:
     """One input topic: a fixed subscription, or (``auto``) one that is recreated with the
     publishers' offer whenever ``update`` finds it changed."""
@@ -57,10 +62,11 @@ class InputSubscription:
     def __init__(self, node, msg_type, topic: str, callback: Callable, kind: str):
         self._node, self._type, self._topic, self._callback = node, msg_type, topic, callback
         self.auto = kind == "auto"
-        self.profile: Optional[QoSProfile] = None
+        self.profile: Optional[QoSProfile] = None   # the publishers' offer followed (auto), or the fixed one
         self._subscription = None
-        if not self.auto:
-            self._subscribe(fixed_profile(kind))
+        self._subscribe(UNDECIDED if self.auto else fixed_profile(kind))
+        if self.auto:
+            self.profile = None
 
     def update(self) -> None:
         """Follow the publishers' offer (auto only): resubscribe when it changed."""
@@ -82,6 +88,11 @@ class InputSubscription:
     def _subscribe(self, profile: QoSProfile) -> None:
         self.profile = profile
         self._subscription = self._node.create_subscription(self._type, self._topic, self._callback, profile)
+
+    def destroy(self) -> None:
+        if self._subscription is not None:
+            self._node.destroy_subscription(self._subscription)
+            self._subscription = None
 
     def state(self) -> str:
         return ("auto: " if self.auto else "") + describe(self.profile)

@@ -1,5 +1,10 @@
 """register_node: Regor registration of two PointCloud2 topics, published as a pose.
 
+A lifecycle node, as Nav2 manages them: configure reads the parameters and loads the map file (a
+map that cannot be loaded fails configure with the reason), activate starts registering and
+publishing, deactivate stops, cleanup releases the map and every entity. With ``autostart`` (the
+default) it configures and activates itself, so ``ros2 run`` works alone.
+
 Callbacks only store the newest messages; one worker thread prepares maps and registers, so a
 slow registration drops stale inputs (counted) instead of queueing them, and the executor keeps
 answering parameter changes. In map mode a new map is prepared before any query is registered:
@@ -10,6 +15,10 @@ from __future__ import annotations
 import re
 import threading
 import time
+from collections import deque
+from pathlib import Path
+from urllib.parse import parse_qs, urlparse
+import dataclasses
 from dataclasses import dataclass
 from typing import Optional, Tuple
 
@@ -22,10 +31,11 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import Header, String
+from nav_msgs.srv import LoadMap
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -46,6 +56,7 @@ from ..tools.map_file import load_map_file
 WARN_THROTTLE_S = 5.0
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
 QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
+OWN_POSES_KEPT = 20  # poses published, remembered so that one coming back as a hint is recognised
 
 
 @dataclass
@@ -59,13 +70,35 @@ def _stamp_seconds(header: Header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
-class RegisterNode(Node):
+def _pose_key(msg: PoseWithCovarianceStamped) -> tuple:
+    p = msg.pose.pose.position
+    return msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id, round(p.x, 6), round(p.y, 6), round(p.z, 6)
+
+
+class RegisterNode(LifecycleNode):
     def __init__(self):
         super().__init__("register_node")
         self.config, self.settings = declare_parameters(self)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-
         self._lock = threading.Condition()
+        self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
+                      "accepted_poses": 0,
+                      "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
+        self.health = Health(counters=self.stats, map_from_file=bool(self.settings.map_file))
+        self._entities = []      # (destroy, entity) of what configure created, for cleanup
+        self._worker: Optional[threading.Thread] = None
+        self._active = False
+        self._stopping = False
+        self._own_poses = deque(maxlen=OWN_POSES_KEPT)  # (stamp, position) of poses published
+        self._reset()
+        # /diagnostics from the start: a node waiting for its lifecycle manager, or whose
+        # configure failed, says so
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        if self.settings.diagnostics_period > 0:
+            self.create_timer(self.settings.diagnostics_period, self._publish_diagnostics)
+
+    def _reset(self) -> None:
+        """The inputs, the map and the answers of one configured lifetime."""
         self._source: Optional[Cloud] = None
         self._target: Optional[Cloud] = None
         self._serials = {"source": 0, "target": 0}
@@ -77,50 +110,109 @@ class RegisterNode(Node):
         self._relocalize_after: Optional[int] = None  # a relocalize call waits for a source after this serial
         self._answer = (0, False, "")  # (source serial, accepted, what happened) of the last registration
         self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
-        self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
-                      "accepted_poses": 0,
-                      "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
-        self._stopping = False
         self._warned = {}  # kind of bad input -> when it was last logged
-        self.health = Health(counters=self.stats)
 
-        self.inputs = {"source": InputSubscription(self, PointCloud2, "source_cloud", self._on_source,
-                                                   self.settings.source_qos)}
-        if not self.settings.map_file:  # else the map is a file
-            self.inputs["target"] = InputSubscription(self, PointCloud2, "target_cloud", self._on_target,
-                                                      self.settings.target_qos)
-        self._follow_publishers()
-        self.create_timer(QOS_CHECK_PERIOD_S, self._follow_publishers)
-        self.create_subscription(PoseWithCovarianceStamped, "initial_guess", self._on_initial_guess,
-                                 fixed_profile("reliable"))
-        # best effort accepts reliable and best-effort publishers alike; a deep queue for 100 Hz odometry
-        self.create_subscription(Odometry, "odometry", self._on_odometry,
-                                 QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                            reliability=ReliabilityPolicy.BEST_EFFORT))
-        self._imu = ImuUp() if self.settings.imu_topic else None  # the source's up, for the gravity prior
-        if self._imu is not None:
-            self.create_subscription(Imu, self.settings.imu_topic, self._on_imu,
-                                     QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
-                                                reliability=ReliabilityPolicy.BEST_EFFORT))
-        # its own callback group: a call waits for a registration while scans keep arriving
-        self.create_service(Trigger, "~/relocalize", self._on_relocalize,
-                            callback_group=MutuallyExclusiveCallbackGroup())
-        self.pose_pub = self.create_publisher(PoseStamped, "pose", 10)
-        self.pose_cov_pub = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance", 10)
-        self.marker_pub = self.create_publisher(MarkerArray, "correspondences", 10)
-        self.candidates_pub = self.create_publisher(PoseArray, "candidates", 10)
-        self.status_pub = self.create_publisher(String, "status", 10)
-        self.aligned_pub = self.create_publisher(PointCloud2, "aligned_cloud", 1)
-        self.map_pub = self.create_publisher(PointCloud2, "map_cloud", fixed_profile("transient_local"))
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        if self.settings.diagnostics_period > 0:
-            self.create_timer(self.settings.diagnostics_period, self._publish_diagnostics)
+    # --- lifecycle ---
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load the map file (or fail with the reason), then create the inputs, outputs and the worker."""
+        with self._lock:
+            config, settings = self.config, self.settings
+            self._reset()
+            self._stopping = False
+        if settings.map_file:
+            try:
+                self._use_map_file(settings.map_file, settings.map_trajectory_file, config, settings)
+            except RegistrationError as exc:
+                self.health.lifecycle = f"configure failed: map_file not usable: {exc}"
+                self.get_logger().error(self.health.lifecycle)
+                return TransitionCallbackReturn.FAILURE
+        self._create_entities(settings)
         self._worker = threading.Thread(target=self._work, name="regor_worker", daemon=True)
         self._worker.start()
+        self.health.lifecycle = "inactive"
         self.get_logger().info(
-            f"ready: mode={self.settings.mode}, voxel={self.config.features.voxel_size} m; "
+            f"configured: mode={settings.mode}, voxel={config.features.voxel_size} m; "
             f"listening on {self.resolve_topic_name('source_cloud')}; the target from "
-            f"{self.settings.map_file or self.resolve_topic_name('target_cloud')}")
+            f"{settings.map_file or self.resolve_topic_name('target_cloud')}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        super().on_activate(state)  # the lifecycle publishers
+        with self._lock:
+            self._active = True
+            prepared, frame = self._prepared_target, self._map_frame
+            self._lock.notify_all()
+        self.health.lifecycle = "active"
+        if self.settings.map_file and prepared is not None:
+            self._publish_map(prepared, frame)
+        self.get_logger().info("active: registering")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        with self._lock:
+            self._active = False
+        self.health.lifecycle = "inactive"
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.stop(STOP_WAIT_S)
+        self._destroy_entities()
+        with self._lock:
+            self._reset()
+        self.health.lifecycle = "unconfigured"
+        self.health.map_info = {}
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.stop(STOP_WAIT_S)
+        self._destroy_entities()
+        self.health.lifecycle = "finalized"
+        return TransitionCallbackReturn.SUCCESS
+
+    def _create_entities(self, settings) -> None:
+        def keep(destroy, entity):
+            self._entities.append((destroy, entity))
+            return entity
+
+        self.inputs = {"source": InputSubscription(self, PointCloud2, "source_cloud", self._on_source,
+                                                   settings.source_qos)}
+        if not settings.map_file:  # else the map is a file
+            self.inputs["target"] = InputSubscription(self, PointCloud2, "target_cloud", self._on_target,
+                                                      settings.target_qos)
+        for subscription in self.inputs.values():
+            keep(lambda s: s.destroy(), subscription)
+        self._follow_publishers()
+        keep(self.destroy_timer, self.create_timer(QOS_CHECK_PERIOD_S, self._follow_publishers))
+        keep(self.destroy_subscription, self.create_subscription(
+            PoseWithCovarianceStamped, "initial_guess", self._on_initial_guess, fixed_profile("reliable")))
+        # best effort accepts reliable and best-effort publishers alike; a deep queue for 100 Hz odometry
+        keep(self.destroy_subscription, self.create_subscription(
+            Odometry, "odometry", self._on_odometry,
+            QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)))
+        self._imu = ImuUp() if settings.imu_topic else None  # the source's up, for the gravity prior
+        if self._imu is not None:
+            keep(self.destroy_subscription, self.create_subscription(
+                Imu, settings.imu_topic, self._on_imu,
+                QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)))
+        # their own callback groups: a call waits for a registration or a map while scans keep arriving
+        keep(self.destroy_service, self.create_service(Trigger, "~/relocalize", self._on_relocalize,
+                                                       callback_group=MutuallyExclusiveCallbackGroup()))
+        keep(self.destroy_service, self.create_service(LoadMap, "~/load_map", self._on_load_map,
+                                                       callback_group=MutuallyExclusiveCallbackGroup()))
+        publish = [("pose_pub", PoseStamped, "pose", 10),
+                   ("pose_cov_pub", PoseWithCovarianceStamped, "pose_with_covariance", 10),
+                   ("marker_pub", MarkerArray, "correspondences", 10), ("candidates_pub", PoseArray, "candidates", 10),
+                   ("status_pub", String, "status", 10), ("aligned_pub", PointCloud2, "aligned_cloud", 1),
+                   ("map_pub", PointCloud2, "map_cloud", fixed_profile("transient_local"))]
+        for attribute, msg_type, topic, qos in publish:
+            setattr(self, attribute, keep(self.destroy_lifecycle_publisher,
+                                          self.create_lifecycle_publisher(msg_type, topic, qos)))
+
+    def _destroy_entities(self) -> None:
+        for destroy, entity in reversed(self._entities):
+            destroy(entity)
+        self._entities = []
 
     # --- parameters ---
 
@@ -182,6 +274,11 @@ class RegisterNode(Node):
         return config.replace({"gravity.source_up": text}), {"direction": text, "from": where}
 
     def _on_initial_guess(self, msg: PoseWithCovarianceStamped) -> None:
+        """A hint, unless it is one of this node's own poses come back (pose_with_covariance
+        remapped to /initialpose while initial_guess listens there: it would narrow the search
+        to wherever the last pose was, right or wrong)."""
+        if _pose_key(msg) in self._own_poses:
+            return
         with self._lock:
             self._hint = msg
             self._lock.notify_all()
@@ -191,6 +288,10 @@ class RegisterNode(Node):
 
     def _on_relocalize(self, request, response):
         """Answer with the registration of the next source: its verdict and the reason."""
+        if not self._active:
+            response.success = False
+            response.message = f"not registering: the node is {self.health.lifecycle} (activate it)"
+            return response
         with self._lock:
             after = self._serials["source"]
             self._relocalize_after = after
@@ -207,6 +308,8 @@ class RegisterNode(Node):
         return response
 
     def _store(self, which: str, msg: PointCloud2) -> None:
+        if not self._active:  # inactive: inputs are not taken (a lifecycle node's contract)
+            return
         try:
             points = cloud_to_xyz(msg)
         except RegistrationError as exc:
@@ -270,6 +373,8 @@ class RegisterNode(Node):
 
     def _next_job(self):
         """What the worker does next: ("prepare", map key, target), ("register", source, target) or None."""
+        if not self._active:
+            return None
         if self.settings.mode == "map":
             key = self._map_key(self.config, self.settings)
             if key is not None and key != self._prepared_key:
@@ -302,43 +407,92 @@ class RegisterNode(Node):
 
     def _prepare_map(self, key, tgt: Optional[Cloud], config, settings) -> None:
         """Prepare the map once per message or file (and feature settings); queries wait meanwhile."""
-        self.health.preparing_map = True
-        start = time.perf_counter()
-        info = {}
         try:
             if settings.map_file:
-                loaded = load_map_file(settings.map_file, config, settings.map_trajectory_file,
-                                       settings.map_cache, settings.map_cache_dir,
-                                       warn=self.get_logger().warning)
-                prepared, info, frame = loaded.prepared, loaded.info, settings.map_frame
+                self._use_map_file(key[1], key[2], config, settings)
             else:
-                prepared = prepare_cloud(tgt.points, config, "target", viewpoint=key[2])
-                frame = tgt.header.frame_id
+                self._use_map(lambda: (prepare_cloud(tgt.points, config, "target", viewpoint=key[2]), {}),
+                              key, tgt.header.frame_id)
         except RegistrationError as exc:
-            prepared, frame = None, ""
+            with self._lock:
+                if not self._stopping:
+                    self._prepared_target, self._prepared_key, self._map_frame = None, key, ""
             self.health.last_error = f"map not usable: {exc}"
             self._bad_input(f"map skipped: {exc}")
+
+    def _use_map_file(self, map_file: str, trajectory_file: str, config, settings) -> None:
+        """Load (or prepare and cache) a map file and use it; raises RegistrationError with the reason."""
+        key = ("file", map_file, trajectory_file, config.features)
+
+        def load():
+            loaded = load_map_file(map_file, config, trajectory_file or None, settings.map_cache,
+                                   settings.map_cache_dir, warn=self.get_logger().warning)
+            return loaded.prepared, loaded.info
+
+        prepared = self._use_map(load, key, settings.map_frame)
+        if prepared is not None and self._active:  # for RViz: the map as the node uses it
+            self._publish_map(prepared, settings.map_frame)
+
+    def _use_map(self, prepare, key, frame: str) -> Optional[PreparedCloud]:
+        """Run ``prepare`` (-> prepared map, info) and make its map the one registered against;
+        the old map stays in use until then. None when the node stopped meanwhile."""
+        self.health.preparing_map = True
+        start = time.perf_counter()
+        try:
+            prepared, info = prepare()
         finally:
             self.health.preparing_map = False
         seconds = time.perf_counter() - start
         with self._lock:
             if self._stopping:  # the node's publishers are going away
-                return
+                return None
             self._prepared_target, self._prepared_key, self._map_frame = prepared, key, frame
-            if prepared is not None:
-                self.stats["map_preparations"] += 1
-                self.health.map_info = {
-                    "map_points": prepared.input_size, "map_keypoints": len(prepared),
-                    "map_exact_search": prepared.index.exact, **info,
-                    "map_preparation_seconds": round(seconds, 3)}
-        if prepared is None:
-            return
+            self.stats["map_preparations"] += 1
+            self.health.last_error = ""
+            self.health.map_info = {
+                "map_points": prepared.input_size, "map_keypoints": len(prepared),
+                "map_exact_search": prepared.index.exact, **info,
+                "map_preparation_seconds": round(seconds, 3)}
+            self._lock.notify_all()
         cache = f", cache {info['map_cache']}" if info.get("map_cache") else ""
         self.get_logger().info(f"map prepared: {prepared.input_size} points, {len(prepared)} keypoints "
                                f"in {seconds:.1f} s{cache}")
-        if settings.map_file:  # for RViz: the map as the node uses it (downsampled, ground kept)
-            self.map_pub.publish(xyz_to_cloud(prepared.map_view.surface,
-                                              Header(stamp=self.get_clock().now().to_msg(), frame_id=frame)))
+        return prepared
+
+    def _publish_map(self, prepared: PreparedCloud, frame: str) -> None:
+        """The map as the node uses it (downsampled, ground kept), latched for RViz."""
+        self.map_pub.publish(xyz_to_cloud(prepared.map_view.surface,
+                                          Header(stamp=self.get_clock().now().to_msg(), frame_id=frame)))
+
+    def _on_load_map(self, request, response):
+        """Swap the map for another file (nav_msgs/LoadMap: ``map_url`` is the map's path or
+        file:// URL, with ``?trajectory=PATH`` for its TUM trajectory). The cache is used as at
+        start; the old map stays until the new one is ready, and stays when it fails."""
+        if self.settings.mode != "map":
+            response.result = LoadMap.Response.RESULT_UNDEFINED_FAILURE
+            self.get_logger().error("load_map: the node is in pairs mode (mode:=map loads maps)")
+            return response
+        url = urlparse(request.map_url)
+        path = url.path if url.scheme in ("", "file") else ""
+        trajectory = parse_qs(url.query).get("trajectory", [""])[0]
+        missing = [p for p in (path, trajectory) if p and not Path(p).expanduser().is_file()]
+        if not path or missing:
+            response.result = LoadMap.Response.RESULT_MAP_DOES_NOT_EXIST
+            self.get_logger().error(f"load_map: no such file: {missing[0] if missing else request.map_url!r}")
+            return response
+        with self._lock:
+            config, settings = self.config, self.settings
+        try:
+            self._use_map_file(path, trajectory, config, settings)
+        except RegistrationError as exc:
+            response.result = LoadMap.Response.RESULT_INVALID_MAP_DATA
+            self.get_logger().error(f"load_map: map not usable, the previous one stays: {exc}")
+            return response
+        with self._lock:
+            self.settings = dataclasses.replace(self.settings, map_file=path, map_trajectory_file=trajectory)
+        self.health.map_from_file = True
+        response.result = LoadMap.Response.RESULT_SUCCESS
+        return response
 
     def _search_region(self, hint: Optional[PoseWithCovarianceStamped], target_frame: str, settings):
         """The hint as a search region, or None; a hint in another frame is dropped with a warning."""
@@ -426,7 +580,9 @@ class RegisterNode(Node):
         if base is not None:  # the robot's pose, for Nav2: the sensor's composed with its mounting
             T, covariance = attached_pose(T, covariance, base)
         self.pose_pub.publish(pose_stamped(T, header))
-        self.pose_cov_pub.publish(pose_with_covariance(T, covariance, header))
+        own = pose_with_covariance(T, covariance, header)
+        self._own_poses.append(_pose_key(own))
+        self.pose_cov_pub.publish(own)
         if settings.publish_aligned_cloud:
             self.aligned_pub.publish(xyz_to_cloud(transform_points(result.transform, src.points), header))
         return result.accepted, (f"pose published ({figures})" if result.accepted
@@ -437,8 +593,11 @@ class RegisterNode(Node):
         under way is abandoned; it publishes nothing once stopping) and wake a waiting relocalize call."""
         with self._lock:
             self._stopping = True
+            self._active = False
             self._lock.notify_all()
-        self._worker.join(timeout)
+        if self._worker is not None:
+            self._worker.join(timeout)
+            self._worker = None
 
 
 def main(args=None) -> int:
@@ -453,6 +612,16 @@ def main(args=None) -> int:
         print(f"register_node: invalid parameter: {exc}", flush=True)
         rclpy.try_shutdown()
         return 1
+    if node.settings.autostart:
+        if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            print(f"register_node: {node.health.lifecycle}", flush=True)
+            node.destroy_node()
+            rclpy.try_shutdown()
+            return 1
+        node.trigger_activate()
+    else:
+        node.get_logger().info("waiting to be configured (autostart:=false): drive it with its lifecycle "
+                               "services, as Nav2's lifecycle_manager does")
     executor = MultiThreadedExecutor(num_threads=2)
     try:
         rclpy.spin(node, executor)

@@ -30,6 +30,9 @@ class NodeSettings:
 
     mode: str = _param("pairs", "pairs: register each new source/target pair; map: the latest target "
                        "is a map prepared once, every new source is registered against it")
+    autostart: bool = _param(True, "configure and activate at start, as a plain node (exit with the reason when "
+                             "configure fails); false: wait in the unconfigured state for a lifecycle manager "
+                             "(Nav2's lifecycle_manager) to drive it (read only)")
     registration: str = _param("continuous", "continuous: register every new source; on_demand: only the next "
                                "source after a call of the relocalize service (std_srvs/Trigger)")
     relocalize_timeout: float = _param(10.0, "how long a relocalize call waits for the next source and its "
@@ -144,7 +147,7 @@ def parse_pose(text: str, name: str) -> np.ndarray:
 
 CHOICES = {"mode": MODE_CHOICES, "registration": REGISTRATION_CHOICES, "source_qos": QOS_KINDS, "target_qos": QOS_KINDS,
            "preset": PRESETS, **CORE_CHOICES}
-READ_ONLY = {"preset", "source_qos", "target_qos", "diagnostics_period", "map_file", "map_frame",
+READ_ONLY = {"autostart", "preset", "source_qos", "target_qos", "diagnostics_period", "map_file", "map_frame",
              "map_trajectory_file", "map_cache", "map_cache_dir", "imu_topic"}
 
 

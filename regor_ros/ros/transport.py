@@ -9,6 +9,7 @@ receives big clouds without an environment set up beforehand.
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import Optional
 
@@ -31,6 +32,16 @@ def use_large_data_profile() -> Optional[str]:
         return None
     if not path.is_file():
         return None
-    for variable in PROFILE_VARIABLES:
-        os.environ[variable] = str(path)
+    os.environ[profile_variable()] = str(path)
     return str(path)
+
+
+def profile_variable() -> str:
+    """The variable the installed Fast DDS reads: FASTRTPS_... for Fast DDS 2 (libfastrtps,
+    Humble and Jazzy), FASTDDS_... for Fast DDS 3 (libfastdds, Kilted on), which warns that the
+    old name is deprecated."""
+    folders = [Path(p) for p in os.environ.get("LD_LIBRARY_PATH", "").split(os.pathsep) if p]
+    folders.append(Path(sys.prefix) / "lib")
+    if any(next(folder.glob("libfastrtps.so*"), None) for folder in folders if folder.is_dir()):
+        return PROFILE_VARIABLES[1]
+    return PROFILE_VARIABLES[0]

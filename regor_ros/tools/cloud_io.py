@@ -53,7 +53,8 @@ def _kitti_bin(path: Path) -> np.ndarray:
     if raw.size == 0 or raw.size % 4:
         raise CloudFileError(f"{path}: {raw.size * 4} bytes is not a whole number of KITTI points "
                              "(x, y, z, intensity as float32)")
-    return raw.reshape(-1, 4)[:, :3].astype(np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):  # garbage bytes: NaN and inf, refused by the caller
+        return raw.reshape(-1, 4)[:, :3].astype(np.float64)
 
 
 READERS = {".ply": _open3d, ".pcd": _open3d, ".xyz": _text, ".txt": _text, ".npy": _npy,

@@ -16,12 +16,18 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from scipy.spatial import cKDTree
+
 from ..core import PreparedCloud, RegorConfig, prepare_cloud
+from ..core.config import FeatureConfig
 from ..core.estimate import to_matrix
+from ..core.features import MAX_ABS_COORDINATE
 from ..core.map_cache import CacheError, file_digest, load_map, map_key, save_map
 from .cloud_io import CloudFileError, read_cloud
 
 CACHE_SUFFIX = ".regor-cache.npz"
+MIN_SANE_SHARE = 0.5    # a map file is mostly finite points within MAX_ABS_COORDINATE (organised clouds have NaN holes)
+SURFACE_SAMPLE = 3000   # keypoints whose neighbourhoods decide whether the map is made of surfaces
 
 
 def default_cache_dir() -> Path:
@@ -65,6 +71,47 @@ def cache_paths(map_file: Path, cache_dir: Optional[Path]) -> List[Path]:
     return aside + [folder / f"{map_file.stem}-{tag}{CACHE_SUFFIX}"]
 
 
+def read_map(map_file: Path, features: FeatureConfig) -> np.ndarray:
+    """The points of a map file, or a CloudFileError saying why it is not plausibly a map of the
+    sensor's world: mostly garbage (random bytes, a wrong format), a trajectory (TUM rows), or
+    points that form no surfaces at the feature scale (a path, scattered noise)."""
+    points = read_cloud(map_file)
+    sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
+    if sane.mean() < MIN_SANE_SHARE:
+        raise CloudFileError(f"{map_file}: {int((~sane).sum())} of {len(points)} points read are NaN, infinite or "
+                             f"beyond {MAX_ABS_COORDINATE:g} m: not a map (random bytes, another format?)")
+    if map_file.suffix.lower() in (".txt", ".xyz") and _is_trajectory(map_file):
+        raise CloudFileError(f"{map_file}: rows of t x y z qx qy qz qw: a TUM trajectory, not a map "
+                             "(give it as map_trajectory_file)")
+    points = points[sane]
+    neighbours, line = _surface_neighbours(points, features)
+    if neighbours <= line:
+        raise CloudFileError(
+            f"{map_file}: {len(points)} points whose keypoints have a median of {neighbours:g} neighbours within "
+            f"features.normal_radius={features.normal_radius} m; a line gives {line:g} and a surface more: not a "
+            "map of surfaces (a path, scattered points, or the wrong units?)")
+    return points
+
+
+def _is_trajectory(path: Path) -> bool:
+    try:
+        rows = np.loadtxt(path, ndmin=2, comments=("#", "//"))
+    except ValueError:
+        return False
+    return rows.shape[1] == 8 and bool(np.allclose(np.linalg.norm(rows[:, 4:8], axis=1), 1.0, atol=1e-3))
+
+
+def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> Tuple[float, float]:
+    """(median keypoints within the normal radius of a keypoint, what a line sampled at the voxel
+    size has): a normal, and so a feature, needs a surface around the point."""
+    keypoints = points[np.unique(np.floor(points / features.voxel_size).astype(np.int64), axis=0,
+                                 return_index=True)[1]]
+    rng = np.random.default_rng(0)
+    sample = keypoints[rng.choice(len(keypoints), min(SURFACE_SAMPLE, len(keypoints)), replace=False)]
+    counts = cKDTree(keypoints).query_ball_point(sample, features.normal_radius, return_length=True) - 1
+    return float(np.median(counts)), 2.0 * np.floor(features.normal_radius / features.voxel_size)
+
+
 @dataclass
 class MapFromFile:
     prepared: PreparedCloud
@@ -76,7 +123,8 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     """The prepared map of ``map_file`` (any format read_cloud reads), from its cache when one
     matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
     stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
-    CloudFileError for files) with a message a user can act on."""
+    CloudFileError for files, and for a file that is not plausibly a map: read_map) with a
+    message a user can act on."""
     map_file = Path(map_file).expanduser()
     trajectory_file = Path(trajectory_file).expanduser() if trajectory_file else None
     for path in (map_file, trajectory_file):
@@ -94,7 +142,7 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
                 continue
             info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
             return MapFromFile(prepared, info)
-    points = read_cloud(map_file)
+    points = read_map(map_file, config.features)
     trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
     prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
     info["map_cache"] = "not written" if cache else "off"
