@@ -27,6 +27,7 @@ setup(
         "console_scripts": [
             "register_node = regor_ros.ros.node:main",
             "regor-pair-client = regor_ros.tools.pair_client:main",
+            "regor-relocalize = regor_ros.tools.relocalize_client:main",
             "regor-bench = regor_ros.tools.benchmark:main",
             "regor-register = regor_ros.tools.register_cli:main",
             "regor-batch = regor_ros.tools.batch:main",

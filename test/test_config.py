@@ -89,10 +89,10 @@ def test_committed_parameter_files_match_the_presets(name):
         "run: python -m regor_ros.tools.write_presets config"
 
 
-def test_readme_parameter_tables_are_current():
+def test_node_reference_parameter_tables_are_current():
     from conftest import REPO
     from regor_ros.tools.write_presets import with_tables
-    readme = (REPO / "README.md").read_text()
-    assert readme == with_tables(readme), "run: python -m regor_ros.tools.write_presets config README.md"
+    reference = (REPO / "doc" / "node.md").read_text()
+    assert reference == with_tables(reference), "run: python -m regor_ros.tools.write_presets config doc/node.md"
     for name, _, _ in RegorConfig().parameters():
-        assert f"`{name}`" in readme
+        assert f"`{name}`" in reference

@@ -1,8 +1,8 @@
-"""Write config/<preset>.yaml and the README's parameter tables from RegorConfig and the node's
-settings, so neither can drift from the code.
+"""Write config/<preset>.yaml and the node reference's parameter tables (doc/node.md) from
+RegorConfig and the node's settings, so neither can drift from the code.
 
-Run ``python -m regor_ros.tools.write_presets config README.md`` after changing a parameter; tests
-check the committed files against this output.
+Run ``python -m regor_ros.tools.write_presets config doc/node.md`` after changing a parameter;
+tests check the committed files against this output.
 """
 from __future__ import annotations
 
@@ -71,24 +71,24 @@ def parameter_tables() -> str:
     return "\n".join(lines + ["", TABLES_END])
 
 
-def with_tables(readme: str) -> str:
-    """The README text with its parameter tables regenerated."""
-    head, _, rest = readme.partition(TABLES_START)
+def with_tables(text: str) -> str:
+    """The node reference's text with its parameter tables regenerated."""
+    head, _, rest = text.partition(TABLES_START)
     _, _, tail = rest.partition(TABLES_END)
     return head + parameter_tables() + tail
 
 
 def main(argv=None) -> int:
-    args = argv or sys.argv[1:] or ["config", "README.md"]
+    args = argv or sys.argv[1:] or ["config", "doc/node.md"]
     folder = Path(args[0])
     folder.mkdir(parents=True, exist_ok=True)
     for name in PRESETS:
         (folder / f"{name}.yaml").write_text(preset_yaml(name))
         print(f"wrote {folder / (name + '.yaml')}")
     if len(args) > 1:
-        readme = Path(args[1])
-        readme.write_text(with_tables(readme.read_text()))
-        print(f"updated the parameter tables in {readme}")
+        reference = Path(args[1])
+        reference.write_text(with_tables(reference.read_text()))
+        print(f"updated the parameter tables in {reference}")
     return 0
 
 
