@@ -4,7 +4,8 @@ import json
 
 import pytest
 
-from regor_ros.tools.benchmark import main, summarise
+from regor_ros.tools.benchmark import main
+from regor_ros.tools.pairs_benchmark import summarise
 
 from conftest import PAIRS, require_shared_data
 
@@ -96,8 +97,8 @@ def test_summary_recall_spread_inr_and_false_accepts():
 
 def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
     import numpy as np
-    from regor_ros.core.estimate import transform_points
-    from regor_ros.tools.benchmark import Pair
+    from regor_ros.core.geometry import transform_points
+    from regor_ros.tools.pairs_benchmark import Pair
     rng = np.random.default_rng(0)
     src = rng.uniform(-1, 1, (50, 3))
     pair = Pair(3, "p", "indoor", src, src, np.eye(4), np.array([0.5, 0.0, 1.0]), None)

@@ -4,7 +4,7 @@ from scipy import sparse
 
 from regor_ros.core.consistency import (compatibility, leading_eigenvector, length_residual,
                                         second_order, second_order_scores, top_k_stable)
-from regor_ros.core.estimate import transform_points
+from regor_ros.core.geometry import transform_points
 
 from conftest import random_motion
 

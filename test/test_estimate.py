@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core.estimate import (attached_pose, plane_refine, plane_thresholds, point_refine, pose_covariance,
-                                     post_refine, to_matrix, transform_points, weighted_kabsch)
+from regor_ros.core.estimate import plane_refine, plane_thresholds, point_refine, pose_covariance, post_refine, weighted_kabsch
+from regor_ros.core.geometry import attached_pose, to_matrix, transform_points
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 
 from conftest import random_motion

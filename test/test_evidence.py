@@ -5,7 +5,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
-from regor_ros.core.estimate import inliers_at, resolution_uncertainty, to_matrix
+from regor_ros.core.estimate import inliers_at, resolution_uncertainty
+from regor_ros.core.geometry import to_matrix
 from regor_ros.core.evidence import independent, log10_false_alarms
 from regor_ros.core.metrics import is_success
 from regor_ros.core.verification import visibility_figures

@@ -7,7 +7,7 @@ from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
 from regor_ros.core.gravity import GravityPrior
 from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
-from regor_ros.tools.benchmark import UP_Z, Pair
+from regor_ros.tools.pairs_benchmark import UP_Z, Pair
 
 from conftest import DATA, require_shared_data
 

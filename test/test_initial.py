@@ -1,7 +1,7 @@
 import numpy as np
 
 from regor_ros.core import RegorConfig, prepare_cloud
-from regor_ros.core.estimate import transform_points
+from regor_ros.core.geometry import transform_points
 from regor_ros.core.initial import SUPPORT_ROWS, candidate_support, initial_stage
 from regor_ros.core.matching import match_features
 from regor_ros.core.metrics import is_success

@@ -5,8 +5,8 @@ import pytest
 
 from regor_ros.core import RegorConfig, register
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.cloud_io import CloudFileError
-from regor_ros.tools.map_file import cache_paths, load_map_file, read_trajectory
+from regor_ros.io.cloud_io import CloudFileError
+from regor_ros.io.map_file import cache_paths, load_map_file, read_trajectory
 
 from conftest import DATA, load_map_query
 
@@ -91,7 +91,7 @@ def test_cache_off_and_a_missing_file(map_files, tmp_path):
 def test_what_is_not_plausibly_a_map_is_refused_with_what_was_read(map_files, tmp_path):
     """A trajectory given as the map, random bytes as a KITTI .bin, and a path of points: each
     gets an error naming the file and what it holds, never a cache file."""
-    from regor_ros.tools.map_file import read_map
+    from regor_ros.io.map_file import read_map
     features = RegorConfig.preset("outdoor").features
     map_file, trajectory_file, _, _ = map_files
     as_text = tmp_path / "trajectory.txt"

@@ -10,7 +10,7 @@ import open3d as o3d
 import pytest
 
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.cloud_io import CloudFileError, read_cloud
+from regor_ros.io.cloud_io import CloudFileError, read_cloud
 from regor_ros.tools.picture import PICTURE_SIZE
 
 from conftest import moved_pair

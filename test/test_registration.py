@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
-from regor_ros.core.estimate import transform_points
+from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import (is_success, random_rigid_motion, rotation_error_deg,
                                     translation_error)
 from regor_ros.core.pipeline import _register_once, _undo_turn, regrid_rotation
@@ -160,7 +160,7 @@ def test_a_home_fragment_is_not_published_on_a_hotel_fragment():
     no rival, and the registration the other way round comes back to it: every check passes. When
     a change rejects it, this test passes, strict xfail fails: remove the marker."""
     require_shared_data("the home / hotel cross-place case")
-    from regor_ros.tools.benchmark import load_pairs
+    from regor_ros.tools.pairs_benchmark import load_pairs
     pairs = {p.name: p for p in load_pairs(DATA / "pairs_scenes", None)}
     hotel, home = pairs["3dmatch_hotel_umd3_28_31"].moved(4), pairs["3dmatch_home_at_53_57"]
     result = register(home.tgt, hotel.src, RegorConfig.preset("indoor").replace({"seed": 4}),

@@ -2,7 +2,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core.estimate import to_matrix
+from regor_ros.core.geometry import to_matrix
 from regor_ros.core.scan_history import AccumulationLimits, ScanHistory
 
 

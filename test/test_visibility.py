@@ -4,7 +4,7 @@ import pytest
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError
-from regor_ros.core.estimate import transform_points
+from regor_ros.core.geometry import transform_points
 from regor_ros.core.evidence import Evidence
 from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.verification import assess, visibility_figures
@@ -162,7 +162,7 @@ def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
     only the kitchen sensor's free space shows it wrong. Without the kitchen's viewpoint (as for a
     map) the check sees one side, and the partial feature threshold has to reject it."""
     require_shared_data("this cross-place pair")
-    from regor_ros.tools.benchmark import load_pairs
+    from regor_ros.tools.pairs_benchmark import load_pairs
     pairs = {p.name: p for p in load_pairs(DATA / "pairs", None)}
     home, kitchen = pairs["3dmatch_home_at_38_41_ds"].moved(6), pairs["3dmatch_redkitchen_21_34_ds"]
     # the point-level pose (refined point to plane, 51 agree: the feature count alone rejects it)

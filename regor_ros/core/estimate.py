@@ -7,20 +7,8 @@ from typing import Callable, Optional
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .geometry import to_matrix, transform_points
 from .metrics import rotation_error_deg, translation_error
-
-
-def to_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """Stack (..., 3, 3) rotations and (..., 3) translations into (..., 4, 4) transforms."""
-    T = np.zeros(rotation.shape[:-2] + (4, 4))
-    T[..., :3, :3] = rotation
-    T[..., :3, 3] = translation
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ T[:3, :3].T + T[:3, 3]
 
 
 def agreeing(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float) -> np.ndarray:
@@ -239,16 +227,3 @@ def resolution_covariance(JtJ: np.ndarray, gyration: float, voxel_size: float) -
     weakness = eigenvalues[-1] / np.maximum(eigenvalues, eigenvalues[-1] / UNCONSTRAINED_VARIANCE)
     shape = (eigenvectors * weakness) @ eigenvectors.T
     return voxel_size ** 2 / 12.0 * shape * np.outer(scale, scale)
-
-
-def attached_pose(T: np.ndarray, covariance: np.ndarray, T_frame_other: np.ndarray):
-    """(pose, covariance) of a frame rigidly attached to the one ``T`` places (``T_frame_other``:
-    its pose there, the robot base seen from the sensor). The covariance is over small motions in
-    the target frame's axes about each pose's own position (pose_covariance's convention), so a
-    turn of the sensor by dtheta also moves the other frame by dtheta x r, r being the lever
-    arm between them."""
-    moved = T @ T_frame_other
-    lever = moved[:3, 3] - T[:3, 3]
-    J = np.eye(6)
-    J[:3, 3:] = -np.array([[0.0, -lever[2], lever[1]], [lever[2], 0.0, -lever[0]], [-lever[1], lever[0], 0.0]])
-    return moved, J @ covariance @ J.T

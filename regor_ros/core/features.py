@@ -13,7 +13,8 @@ import open3d as o3d
 from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
-from .estimate import transform_points
+from .errors import RegistrationError
+from .geometry import transform_points
 from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .visibility import RangeImage
@@ -21,10 +22,6 @@ from .visibility import RangeImage
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
 MAX_ABS_COORDINATE = 1e6
 FPFH_CHUNK = 100_000  # keypoints per FPFH call: bounds its memory (about 160 MB) on a map
-
-
-class RegistrationError(ValueError):
-    """The input cannot be registered; the message says why and what to change."""
 
 
 @dataclass

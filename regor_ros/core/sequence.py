@@ -13,7 +13,7 @@ from typing import List, Sequence
 
 import numpy as np
 
-from .estimate import transform_points
+from .geometry import transform_points
 from .features import RegistrationError, SeenCloud, check_viewpoint, clean_points
 from .visibility import ORIGIN
 

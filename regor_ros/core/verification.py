@@ -24,7 +24,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .config import AcceptanceConfig, RegorConfig
-from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, to_matrix, transform_points
+from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine
+from .geometry import to_matrix, transform_points
 from .evidence import Evidence
 from .features import PreparedCloud
 from .gravity import GravityPrior

@@ -28,7 +28,7 @@ from typing import Optional
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
-from .config import ConfigError
+from .geometry import parse_numbers
 
 MIN_RANGE = 1e-3  # points this close to the viewpoint have no direction [m]
 MAX_SPLAT_BINS = 8  # a footprint wider than 17 bins (a point right by the viewpoint) is capped
@@ -44,13 +44,7 @@ def parse_viewpoint(text: str, name: str, auto=ORIGIN):
         return auto
     if word == "none":
         return None
-    try:
-        values = tuple(float(v) for v in word.replace("[", " ").replace("]", " ").replace(",", " ").split())
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not np.isfinite(values).all():
-        raise ConfigError(f"{name}={text!r}: give 'x, y, z' in metres, 'none' (unknown) or 'auto'")
-    return values
+    return tuple(parse_numbers(word, 3, name, "'x, y, z' in metres, 'none' (unknown) or 'auto'"))
 
 
 @dataclass

@@ -40,8 +40,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
-from ..core.scan_history import ScanHistory
-from ..core.estimate import attached_pose, transform_points
+from ..core import ScanHistory
+from ..core import attached_pose, transform_points
 from .diagnostics import Health, diagnostic_array
 from .imu_up import ImuUp
 from .initial_guess import search_region
@@ -51,7 +51,7 @@ from .messages import (candidate_poses, correspondence_markers, matrix_from_pose
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 from .transport import use_large_data_profile
-from ..tools.map_file import load_map_file
+from ..io.map_file import load_map_file
 
 WARN_THROTTLE_S = 5.0
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)

@@ -13,11 +13,11 @@ import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from scipy.spatial.transform import Rotation
 
-from ..core.config import CHOICES as CORE_CHOICES
-from ..core.config import PRESETS, ConfigError, RegorConfig, _param
-from ..core.estimate import to_matrix
-from ..core.scan_history import AccumulationLimits
-from ..core.visibility import ORIGIN, parse_viewpoint
+from ..core import CHOICES as CORE_CHOICES
+from ..core import PRESETS, ConfigError, RegorConfig, param
+from ..core import parse_numbers, to_matrix
+from ..core import AccumulationLimits
+from ..core import ORIGIN, parse_viewpoint
 from .input_qos import QOS_KINDS
 
 MODE_CHOICES = ("pairs", "map")
@@ -28,84 +28,84 @@ REGISTRATION_CHOICES = ("continuous", "on_demand")
 class NodeSettings:
     """What the node does around the core: inputs, modes and outputs."""
 
-    mode: str = _param("pairs", "pairs: register each new source/target pair; map: the latest target "
+    mode: str = param("pairs", "pairs: register each new source/target pair; map: the latest target "
                        "is a map prepared once, every new source is registered against it")
-    autostart: bool = _param(True, "configure and activate at start, as a plain node (exit with the reason when "
+    autostart: bool = param(True, "configure and activate at start, as a plain node (exit with the reason when "
                              "configure fails); false: wait in the unconfigured state for a lifecycle manager "
                              "(Nav2's lifecycle_manager) to drive it (read only)")
-    registration: str = _param("continuous", "continuous: register every new source; on_demand: only the next "
+    registration: str = param("continuous", "continuous: register every new source; on_demand: only the next "
                                "source after a call of the relocalize service (std_srvs/Trigger)")
-    relocalize_timeout: float = _param(10.0, "how long a relocalize call waits for the next source and its "
+    relocalize_timeout: float = param(10.0, "how long a relocalize call waits for the next source and its "
                                        "registration [s]", 0.1, 3600.0)
-    max_stamp_difference: float = _param(0.0, "pairs mode: register only clouds whose stamps differ "
+    max_stamp_difference: float = param(0.0, "pairs mode: register only clouds whose stamps differ "
                                          "by at most this [s]; 0 = any", 0.0, 1e6)
-    source_qos: str = _param("auto", "QoS of source_cloud: auto (reliable when every publisher is, transient "
+    source_qos: str = param("auto", "QoS of source_cloud: auto (reliable when every publisher is, transient "
                              "local when every publisher is, best effort otherwise; followed as publishers "
                              "come and go), sensor_data (best effort), reliable, or transient_local (latched)")
-    target_qos: str = _param("auto", "QoS of target_cloud: auto, sensor_data, reliable, or transient_local "
+    target_qos: str = param("auto", "QoS of target_cloud: auto, sensor_data, reliable, or transient_local "
                              "(see source_qos)")
-    max_markers: int = _param(500, "most correspondence lines published on correspondences", 0, 100000)
-    max_candidates: int = _param(5, "most distinct candidate poses published on candidates (the search's places, "
+    max_markers: int = param(500, "most correspondence lines published on correspondences", 0, 100000)
+    max_candidates: int = param(5, "most distinct candidate poses published on candidates (the search's places, "
                                  "best supported first, after every registration); 0 = none", 0, 1000)
-    marker_line_width: float = _param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
-    publish_aligned_cloud: bool = _param(False, "publish the source cloud moved into the target frame "
+    marker_line_width: float = param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
+    publish_aligned_cloud: bool = param(False, "publish the source cloud moved into the target frame "
                                          "on aligned_cloud")
-    publish_rejected: bool = _param(False, "also publish poses that fail the quality gate (status "
+    publish_rejected: bool = param(False, "also publish poses that fail the quality gate (status "
                                     "says so); off: a rejected pose is only reported")
-    diagnostics_period: float = _param(1.0, "seconds between DiagnosticArray messages on /diagnostics; 0 = none "
+    diagnostics_period: float = param(1.0, "seconds between DiagnosticArray messages on /diagnostics; 0 = none "
                                        "(read only)", 0.0, 3600.0)
-    source_viewpoint: str = _param("auto", "where the source sensor sat in the source message's frame, for "
+    source_viewpoint: str = param("auto", "where the source sensor sat in the source message's frame, for "
                                    "the free-space check: 'x, y, z' [m], 'none' (unknown: an aggregated "
                                    "cloud), or auto (the frame's origin)")
-    target_viewpoint: str = _param("auto", "where the target sensor sat in the target message's frame: "
+    target_viewpoint: str = param("auto", "where the target sensor sat in the target message's frame: "
                                    "'x, y, z' [m], 'none', or auto (the frame's origin in pairs mode; none "
                                    "in map mode, a map has no single viewpoint)")
 
-    map_file: str = _param("", "map mode: the map as a file (.pcd, .ply, .npy, .xyz/.txt, KITTI .bin), loaded at "
+    map_file: str = param("", "map mode: the map as a file (.pcd, .ply, .npy, .xyz/.txt, KITTI .bin), loaded at "
                            "start instead of target_cloud and published once on map_cloud; '' = the map comes "
                            "on target_cloud (read only)")
-    map_frame: str = _param("map", "frame of the map_file's points: the frame the poses are published in (read only)")
-    map_trajectory_file: str = _param("", "the sensor poses the map_file was built from, TUM format (t x y z qx qy "
+    map_frame: str = param("map", "frame of the map_file's points: the frame the poses are published in (read only)")
+    map_trajectory_file: str = param("", "the sensor poses the map_file was built from, TUM format (t x y z qx qy "
                                       "qz qw, as SLAM packages save it): the free-space check also sees the map "
                                       "from them; '' = none (read only)")
-    map_cache: bool = _param(True, "keep the prepared map_file in a cache file (beside the map, or in "
+    map_cache: bool = param(True, "keep the prepared map_file in a cache file (beside the map, or in "
                              "map_cache_dir) and load it at the next start when map, trajectory and feature "
                              "settings are unchanged; a stale or unreadable cache is rebuilt (read only)")
-    map_cache_dir: str = _param("", "folder for the map cache; '' = beside the map file, or "
+    map_cache_dir: str = param("", "folder for the map cache; '' = beside the map file, or "
                                 "$XDG_CACHE_HOME/regor_ros (~/.cache/regor_ros) when that folder is not "
                                 "writable (read only)")
 
-    initial_guess_sigmas: float = _param(3.0, "an initial_guess restricts the search to this many standard deviations of "
+    initial_guess_sigmas: float = param(3.0, "an initial_guess restricts the search to this many standard deviations of "
                                          "its position covariance around it", 0.0, 100.0)
-    initial_guess_min_radius: float = _param(2.0, "the search radius of an initial_guess is at least this, however "
+    initial_guess_min_radius: float = param(2.0, "the search radius of an initial_guess is at least this, however "
                                              "certain it claims to be [m]", 0.0, 1e5)
-    initial_guess_max_radius: float = _param(50.0, "the search radius of an initial_guess is at most this, however "
+    initial_guess_max_radius: float = param(50.0, "the search radius of an initial_guess is at most this, however "
                                              "uncertain it is [m]", 0.0, 1e6)
 
-    accumulate_scans: int = _param(0, "scans fused along odometry into one source, the newest included: 1 = "
+    accumulate_scans: int = param(0, "scans fused along odometry into one source, the newest included: 1 = "
                                    "each scan alone; 0 = auto (1 in pairs mode, 5 in map mode: a sparse scan "
                                    "often has too few correct matches to be found in a map; needs odometry)", 0, 100)
-    accumulate_max_distance: float = _param(10.0, "fuse only scans whose sensor was within this of the newest "
+    accumulate_max_distance: float = param(10.0, "fuse only scans whose sensor was within this of the newest "
                                             "one's (odometry drifts with distance) [m]", 0.0, 1e4)
-    accumulate_max_age: float = _param(10.0, "fuse only scans at most this much older than the newest [s]", 0.0, 1e4)
-    odometry_tolerance: float = _param(0.05, "a scan is placed by the odometry interpolated around its stamp, or "
+    accumulate_max_age: float = param(10.0, "fuse only scans at most this much older than the newest [s]", 0.0, 1e4)
+    odometry_tolerance: float = param(0.05, "a scan is placed by the odometry interpolated around its stamp, or "
                                        "the nearest message within this; a scan with none is not fused [s]", 0.0, 10.0)
-    odometry_to_scan: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the scan's frame in the odometry's "
+    odometry_to_scan: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the scan's frame in the odometry's "
                                    "child frame: 'x, y, z, roll, pitch, yaw' [m, rad] (identity when the "
                                    "odometry is the sensor's own)")
 
-    base_frame: str = _param("", "the robot's base frame: pose and pose_with_covariance give its pose (Nav2's "
+    base_frame: str = param("", "the robot's base frame: pose and pose_with_covariance give its pose (Nav2's "
                              "/initialpose wants it) instead of the source frame's; '' = the source frame's")
-    base_to_sensor: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the source cloud's frame in base_frame: "
+    base_to_sensor: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the source cloud's frame in base_frame: "
                                  "'x, y, z, roll, pitch, yaw' [m, rad] (the sensor's mounting; this node does "
                                  "not look up tf)")
 
-    imu_topic: str = _param("", "sensor_msgs/Imu topic giving the source sensor's up direction for the gravity "
+    imu_topic: str = param("", "sensor_msgs/Imu topic giving the source sensor's up direction for the gravity "
                             "prior (gravity.source_up follows it; gravity.target_up must be set): the reported "
                             "orientation, or the mean acceleration over imu_window when there is none; '' = "
                             "gravity.source_up as set (read only)")
-    imu_window: float = _param(1.0, "seconds of IMU accelerations before a scan averaged into its up direction", 0.01, 60.0)
-    sensor_to_imu: str = _param("0, 0, 0, 0, 0, 0", "fixed pose of the IMU in the source cloud's frame: 'x, y, z, "
+    imu_window: float = param(1.0, "seconds of IMU accelerations before a scan averaged into its up direction", 0.01, 60.0)
+    sensor_to_imu: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the IMU in the source cloud's frame: 'x, y, z, "
                                 "roll, pitch, yaw' [m, rad]; only its rotation is used")
 
     def accumulation(self) -> AccumulationLimits:
@@ -136,12 +136,7 @@ class NodeSettings:
 def parse_pose(text: str, name: str) -> np.ndarray:
     """4x4 transform of 'x, y, z, roll, pitch, yaw' (metres, radians, fixed-axis roll-pitch-yaw as
     tf2 and URDF use it); ConfigError when malformed."""
-    try:
-        values = [float(v) for v in text.replace(",", " ").split()]
-    except ValueError:
-        values = []
-    if len(values) != 6 or not np.isfinite(values).all():
-        raise ConfigError(f"{name}={text!r}: give 'x, y, z, roll, pitch, yaw' in metres and radians")
+    values = parse_numbers(text, 6, name, "'x, y, z, roll, pitch, yaw' in metres and radians")
     return to_matrix(Rotation.from_euler("xyz", values[3:]).as_matrix(), np.array(values[:3]))
 
 
@@ -166,7 +161,7 @@ def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescript
     return desc
 
 
-PRESET_FIELD = _param("indoor", "preset the core parameters start from: indoor, outdoor or object "
+PRESET_FIELD = param("indoor", "preset the core parameters start from: indoor, outdoor or object "
                       "(read only; set at start, e.g. in the parameter file)")
 
 

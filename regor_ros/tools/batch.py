@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Set, TextIO
 
 from ..core import ConfigError, RegorConfig
-from ..core.config import PRESETS
+from ..core import PRESETS
 from .batch_list import ListError, PairRow, read_pairs
 from .batch_worker import register_row, row_identity
 from .register_cli import parse_overrides

@@ -18,10 +18,11 @@ from typing import Dict, List
 import numpy as np
 
 from ..core import RegorConfig, register
-from ..core.metrics import is_success
+from ..core import is_success
 from .batch import Progress, ResultFile, open_client, run_batch
 from .batch_list import read_pairs
-from .cloud_io import read_cloud
+from .bench_results import write_results
+from ..io.cloud_io import read_cloud
 
 CACHE_CLOUDS = 16  # regor-batch's default
 
@@ -56,7 +57,6 @@ def _scored(name: str, seconds: float, accepted: List[bool], correct: List[bool]
 
 def run_batch_scaling(maps: Path, workers: List[int], config: RegorConfig, overrides: Dict, out: Path,
                       header: str) -> str:
-    from .benchmark import write_results
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
         truths = candidate_list(maps, scratch)

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
-from ..core.config import PRESETS, ConfigError
-from ..core.visibility import parse_viewpoint
+from ..core import PRESETS, ConfigError
+from ..core import parse_viewpoint
 
 COLUMNS = ("id", "source", "target", "source_viewpoint", "target_viewpoint", "preset")
 

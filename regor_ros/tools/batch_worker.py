@@ -17,7 +17,7 @@ from typing import Dict, Optional
 
 from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
 from .batch_list import PairRow
-from .cloud_io import read_cloud
+from ..io.cloud_io import read_cloud
 
 
 class PreparedClouds:

@@ -32,8 +32,8 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from ..core import RegorConfig
-from ..core.verification import Rival, ambiguity
-from .benchmark import place, same_place
+from ..core import Rival, ambiguity
+from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
 FEATURE_GRID = np.arange(0, 151, 5)

@@ -29,10 +29,10 @@ import numpy as np
 
 from ..core import RegorConfig, ScanSequence, prepare_cloud, register
 from .peers import NO_PRIOR, PLANE
-from ..core.estimate import to_matrix
-from ..core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success, rotation_error_deg, translation_error
-from .map_file import load_map_file, read_trajectory, write_trajectory
-from .benchmark import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
+from ..core import to_matrix
+from ..core import ERROR_SIGMAS_99, error_sigmas, is_success, rotation_error_deg, translation_error
+from ..io.map_file import load_map_file, read_trajectory, write_trajectory
+from .bench_results import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")

@@ -22,7 +22,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from ..core.metrics import random_rigid_motion, rotation_error_deg, translation_error
+from ..core import random_rigid_motion, rotation_error_deg, translation_error
 from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
 

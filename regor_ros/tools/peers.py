@@ -14,7 +14,7 @@ import numpy as np
 import open3d as o3d
 
 from ..core import PreparedCloud, RegorConfig, register
-from ..core.estimate import to_matrix
+from ..core import to_matrix
 
 
 @dataclass

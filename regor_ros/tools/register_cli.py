@@ -13,10 +13,10 @@ import sys
 import numpy as np
 
 from ..core import ConfigError, RegistrationError, RegorConfig, register
-from ..core.config import PRESETS
-from ..core.metrics import rotation_error_deg, translation_error
-from ..core.visibility import parse_viewpoint
-from .cloud_io import FORMATS, read_cloud
+from ..core import PRESETS
+from ..core import rotation_error_deg, translation_error
+from ..core import parse_viewpoint
+from ..io.cloud_io import FORMATS, read_cloud
 
 
 def parse_overrides(items):

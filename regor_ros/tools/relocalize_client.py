@@ -24,7 +24,7 @@ from std_srvs.srv import Trigger
 
 from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
-from .cloud_io import read_cloud
+from ..io.cloud_io import read_cloud
 
 TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "activate": Transition.TRANSITION_ACTIVATE,
                "deactivate": Transition.TRANSITION_DEACTIVATE, "cleanup": Transition.TRANSITION_CLEANUP}

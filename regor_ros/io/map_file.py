@@ -19,10 +19,10 @@ from scipy.spatial.transform import Rotation
 from scipy.spatial import cKDTree
 
 from ..core import PreparedCloud, RegorConfig, prepare_cloud
-from ..core.config import FeatureConfig
-from ..core.estimate import to_matrix
-from ..core.features import MAX_ABS_COORDINATE
-from ..core.map_cache import CacheError, file_digest, load_map, map_key, save_map
+from ..core import FeatureConfig
+from ..core import to_matrix
+from ..core import MAX_ABS_COORDINATE
+from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 from .cloud_io import CloudFileError, read_cloud
 
 CACHE_SUFFIX = ".regor-cache.npz"

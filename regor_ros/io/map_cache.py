@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .config import FeatureConfig
-from .feature_index import FeatureIndex
-from .features import PreparedCloud
-from .map_view import MapView
+from ..core.config import FeatureConfig
+from ..core.feature_index import FeatureIndex
+from ..core.features import PreparedCloud
+from ..core.map_view import MapView
 
 CACHE_VERSION = 1  # raise when the saved arrays or their meaning change
 

@@ -1,0 +1,48 @@
+"""Rigid transforms as 4x4 matrices, and the text forms users write them in.
+
+Every layer moves points and composes poses; this is the one place those helpers live, with the
+one parser of the 'x y z ...' strings that parameters, the command line and files use.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import ConfigError
+
+
+def to_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Stack (..., 3, 3) rotations and (..., 3) translations into (..., 4, 4) transforms."""
+    T = np.zeros(rotation.shape[:-2] + (4, 4))
+    T[..., :3, :3] = rotation
+    T[..., :3, 3] = translation
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def attached_pose(T: np.ndarray, covariance: np.ndarray, T_frame_other: np.ndarray):
+    """(pose, covariance) of a frame rigidly attached to the one ``T`` places (``T_frame_other``:
+    its pose there, the robot base seen from the sensor). The covariance is over small motions in
+    the target frame's axes about each pose's own position (pose_covariance's convention), so a
+    turn of the sensor by dtheta also moves the other frame by dtheta x r, r being the lever
+    arm between them."""
+    moved = T @ T_frame_other
+    lever = moved[:3, 3] - T[:3, 3]
+    J = np.eye(6)
+    J[:3, 3:] = -np.array([[0.0, -lever[2], lever[1]], [lever[2], 0.0, -lever[0]], [-lever[1], lever[0], 0.0]])
+    return moved, J @ covariance @ J.T
+
+
+def parse_numbers(text: str, count: int, name: str, what: str) -> np.ndarray:
+    """The ``count`` finite numbers written in ``text`` (separated by spaces or commas, brackets
+    ignored); ConfigError naming the parameter ``name`` and ``what`` to give otherwise."""
+    try:
+        values = [float(v) for v in str(text).replace("[", " ").replace("]", " ").replace(",", " ").split()]
+    except ValueError:
+        values = []
+    if len(values) != count or not np.isfinite(values).all():
+        raise ConfigError(f"{name}={text!r}: give {what}")
+    return np.asarray(values, dtype=np.float64)
