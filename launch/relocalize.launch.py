@@ -11,11 +11,12 @@ With autostart:=false the node waits for a lifecycle manager (Nav2's lifecycle_m
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
+
+from launch import LaunchDescription
 
 ARGUMENTS = [  # name, default, description
     ("params_file", os.path.join(get_package_share_directory("regor_ros"), "config", "outdoor.yaml"),

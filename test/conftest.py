@@ -93,6 +93,7 @@ def install(tmp_path_factory):
 @pytest.fixture(scope="session")
 def ros():
     import rclpy
+
     from regor_ros.tools.pair_client import PairClient
 
     rclpy.init()

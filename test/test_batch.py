@@ -10,13 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import DATA, require_shared_data
 
 from regor_ros.core import RegorConfig, register
 from regor_ros.tools.batch import Dispatcher, ResultFile, plain_worker_environment
-from regor_ros.tools.batch_list import ListError, read_pairs
 from regor_ros.tools.batch_benchmark import same_result
-
-from conftest import DATA, require_shared_data
+from regor_ros.tools.batch_list import ListError, read_pairs
 
 SCANS = DATA / "maps" / "scaloam_mulran_kaist03" / "queries"
 # place recognition's candidates among five scans of a drive: each scan is in several pairs
@@ -87,7 +86,8 @@ def test_two_workers_give_register_s_rows_and_bad_rows_get_an_error(first_run, s
     done, out = first_run
     assert done.returncode == 1, done.stderr  # 1: some rows have an error, the batch went on
     rows = rows_of(out)
-    assert sorted(r["id"] for r in rows) == sorted([n for n, _, _ in GOOD] + ["missing", "broken", "viewpoint", "preset"])
+    expected = [n for n, _, _ in GOOD] + ["missing", "broken", "viewpoint", "preset"]
+    assert sorted(r["id"] for r in rows) == sorted(expected)
     check_rows(rows, serial)
     errors = {r["id"]: r["error"] for r in rows if r["error"]}
     assert set(errors) == {"missing", "broken", "viewpoint", "preset"}
@@ -121,6 +121,7 @@ def test_a_rerun_resumes_and_skips_the_rows_already_written(first_run, serial, s
 
 def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tmp_path):
     import logging
+
     from distributed import Client, LocalCluster
     with plain_worker_environment():  # an existing cluster, set up as regor-batch's own
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -129,7 +130,8 @@ def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tm
     out = tmp_path / "out.jsonl"
     try:
         pids = client.run(os.getpid)
-        batch = subprocess.Popen([sys.executable, "-m", "regor_ros.tools.batch", str(write_list(tmp_path / "pairs.csv", False)),
+        batch = subprocess.Popen([sys.executable, "-m", "regor_ros.tools.batch",
+                                  str(write_list(tmp_path / "pairs.csv", False)),
                                   "--scans", str(scans), "--out", str(out), "--preset", "outdoor",
                                   "--scheduler", cluster.scheduler_address, "--no-progress"],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

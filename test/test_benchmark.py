@@ -3,11 +3,10 @@ import csv
 import json
 
 import pytest
+from conftest import PAIRS, require_shared_data
 
 from regor_ros.tools.benchmark import main
 from regor_ros.tools.pairs_benchmark import summarise
-
-from conftest import PAIRS, require_shared_data
 
 TWO = ["3dmatch_redkitchen_5_6_ds", "stanford_bunny_045_to_000"]
 
@@ -97,6 +96,7 @@ def test_summary_recall_spread_inr_and_false_accepts():
 
 def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
     import numpy as np
+
     from regor_ros.core.geometry import transform_points
     from regor_ros.tools.pairs_benchmark import Pair
     rng = np.random.default_rng(0)

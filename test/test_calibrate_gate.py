@@ -13,7 +13,7 @@ def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
     samples = [sample("a", True, 40, 0.02), sample("a", True, 90, 0.05),
                sample("b", False, 80, 0.40), sample("b", False, 20, 0.01),   # caught by each check
                sample("c", False, 120, 0.0, rivals=((0.95, 0.9, 0.0, 0.0, 180.0),)),
-               sample("d", False, 120, 0.0, opposite=0.9)]                      # back to back                 # a symmetric room
+               sample("d", False, 120, 0.0, opposite=0.9)]                      # back to back
     thresholds = fit(samples, "indoor")
     violation, features, max_ambiguity, features_partial = thresholds
     assert 0.05 <= violation < 0.40 and 20 < features <= 40 and max_ambiguity <= 0.95

@@ -84,6 +84,7 @@ def test_every_field_has_a_description_and_range():
 @pytest.mark.parametrize("name", PRESETS)
 def test_committed_parameter_files_match_the_presets(name):
     from conftest import REPO
+
     from regor_ros.tools.write_presets import preset_yaml
     assert (REPO / "config" / f"{name}.yaml").read_text() == preset_yaml(name), \
         "run: python -m regor_ros.tools.write_presets config"
@@ -91,6 +92,7 @@ def test_committed_parameter_files_match_the_presets(name):
 
 def test_node_reference_parameter_tables_are_current():
     from conftest import REPO
+
     from regor_ros.tools.write_presets import with_tables
     reference = (REPO / "doc" / "node.md").read_text()
     assert reference == with_tables(reference), "run: python -m regor_ros.tools.write_presets config doc/node.md"

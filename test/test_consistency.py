@@ -1,12 +1,16 @@
 import numpy as np
-
+from conftest import random_motion
 from scipy import sparse
 
-from regor_ros.core.consistency import (compatibility, leading_eigenvector, length_residual,
-                                        second_order, second_order_scores, top_k_stable)
+from regor_ros.core.consistency import (
+    compatibility,
+    leading_eigenvector,
+    length_residual,
+    second_order,
+    second_order_scores,
+    top_k_stable,
+)
 from regor_ros.core.geometry import transform_points
-
-from conftest import random_motion
 
 
 def clique_problem(seed=0, inliers=30, outliers=70):

@@ -21,7 +21,8 @@ def test_each_state_has_its_level_and_reason():
     assert withheld.level == DiagnosticStatus.WARN and "12 feature matches" in withheld.message
     published = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary={**SUMMARY, "accepted": True})
     assert published.level == DiagnosticStatus.OK
-    malformed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_summary=SUMMARY, last_bad_input="no x field")
+    malformed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_summary=SUMMARY,
+                       last_bad_input="no x field")
     assert malformed.level == DiagnosticStatus.WARN and "no x field" in malformed.message
     failed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_error="source: the cloud is empty")
     assert failed.level == DiagnosticStatus.ERROR and "empty" in failed.message

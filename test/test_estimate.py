@@ -1,13 +1,18 @@
 import numpy as np
-
 import pytest
+from conftest import random_motion
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core.estimate import plane_refine, plane_thresholds, point_refine, pose_covariance, post_refine, weighted_kabsch
+from regor_ros.core.estimate import (
+    plane_refine,
+    plane_thresholds,
+    point_refine,
+    pose_covariance,
+    post_refine,
+    weighted_kabsch,
+)
 from regor_ros.core.geometry import attached_pose, to_matrix, transform_points
 from regor_ros.core.metrics import rotation_error_deg, translation_error
-
-from conftest import random_motion
 
 
 def test_kabsch_recovers_a_known_motion():

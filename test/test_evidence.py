@@ -2,17 +2,16 @@
 own uncertainty, on the real scan-to-map data where fixed thresholds failed."""
 import numpy as np
 import pytest
+from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
-from regor_ros.core.geometry import to_matrix
 from regor_ros.core.evidence import independent, log10_false_alarms
+from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
 from regor_ros.core.verification import visibility_figures
 from regor_ros.tools.map_benchmark import load_sequence
-
-from conftest import DATA, require_shared_data
 
 OUTDOOR = RegorConfig.preset("outdoor")
 
@@ -63,7 +62,8 @@ def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncerta
     gate = OUTDOOR.acceptance
     pitched = query.truth @ to_matrix(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))
     assert visibility_figures(pitched, fused, prepared, gate).worst > gate.max_free_space_violation
-    assert visibility_figures(pitched, fused, prepared, gate, uncertainty=uncertainty).worst <= gate.max_free_space_violation
+    allowed = visibility_figures(pitched, fused, prepared, gate, uncertainty=uncertainty)
+    assert allowed.worst <= gate.max_free_space_violation
     turned = query.truth @ to_matrix(Rotation.from_euler("z", 90.0, degrees=True).as_matrix(), np.zeros(3))
     assert visibility_figures(turned, fused, prepared, gate, uncertainty=uncertainty).worst > 0.1
 

@@ -1,10 +1,9 @@
 """The feature index: exact against a scan, an inverted file against a map, restricted views."""
 import numpy as np
+from conftest import load_map_query
 
 from regor_ros.core import RegorConfig, prepare_cloud
 from regor_ros.core.feature_index import FeatureIndex
-
-from conftest import load_map_query
 
 
 def unit_rows(rng, n):

@@ -1,9 +1,8 @@
 import numpy as np
+from conftest import moved_pair
 
 from regor_ros.core import RegorConfig, prepare_cloud
 from regor_ros.core.features import largest_plane
-
-from conftest import moved_pair
 
 
 def test_largest_plane_finds_the_ground_and_nothing_else():

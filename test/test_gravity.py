@@ -2,14 +2,13 @@
 measured tilt between the two scans 0.35 deg against the SLAM truth)."""
 import numpy as np
 import pytest
+from conftest import DATA, require_shared_data
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
 from regor_ros.core.gravity import GravityPrior
 from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
 from regor_ros.tools.pairs_benchmark import UP_Z, Pair
-
-from conftest import DATA, require_shared_data
 
 PAIR = "mulran_riv02_048_to_044"  # 12 m apart, 72 % overlap: Regor registers it with or without the prior
 

@@ -1,12 +1,11 @@
 import numpy as np
+from conftest import random_motion
 
 from regor_ros.core import RegorConfig, prepare_cloud
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.initial import SUPPORT_ROWS, candidate_support, initial_stage
 from regor_ros.core.matching import match_features
 from regor_ros.core.metrics import is_success
-
-from conftest import random_motion
 
 
 def test_candidate_support_counts_keypoints_landing_on_a_candidate():

@@ -3,18 +3,17 @@ fails with the reason, activate registers, load_map swaps maps, and the node nev
 pose as a hint."""
 import numpy as np
 import pytest
+from conftest import DATA, load_map_query
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.srv import LoadMap
+from ros_helpers import TIMEOUT, NodeProcess, call
 from std_srvs.srv import Trigger
 
 from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import pose_to_matrix
-
-from conftest import DATA, load_map_query
-from ros_helpers import TIMEOUT, NodeProcess, call
 
 OUTDOOR_ARGS = ("-p", "preset:=outdoor", "-p", "mode:=map", "-p", "map_cache:=false", "-r", "__node:=register_node")
 

@@ -2,13 +2,12 @@
 import numpy as np
 import open3d as o3d
 import pytest
+from conftest import DATA, load_map_query
 
 from regor_ros.core import RegorConfig, register
 from regor_ros.core.metrics import is_success
 from regor_ros.io.cloud_io import CloudFileError
 from regor_ros.io.map_file import cache_paths, load_map_file, read_trajectory
-
-from conftest import DATA, load_map_query
 
 SEQUENCE = "fastlio_avia_hku2"
 
@@ -27,7 +26,8 @@ def map_files(tmp_path_factory):
 def test_tum_trajectory_is_read_and_bad_files_say_why(tmp_path, map_files):
     stamps, poses = read_trajectory(map_files[1])
     assert poses.shape == (len(stamps), 4, 4) and len(stamps) > 10
-    np.testing.assert_allclose(poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1), np.tile(np.eye(3), (len(poses), 1, 1)), atol=1e-9)
+    np.testing.assert_allclose(poses[:, :3, :3] @ poses[:, :3, :3].transpose(0, 2, 1),
+                               np.tile(np.eye(3), (len(poses), 1, 1)), atol=1e-9)
     bad = tmp_path / "bad.txt"
     bad.write_text("0 1 2 3 0 0 0\n")
     with pytest.raises(CloudFileError, match="8 numbers"):

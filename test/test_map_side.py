@@ -2,6 +2,7 @@
 defaults, on the real scan-to-map sequences."""
 import numpy as np
 import pytest
+from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegistrationError, RegorConfig, ScanSequence, prepare_cloud, register
@@ -9,8 +10,6 @@ from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success, translation_error
 from regor_ros.core.verification import visibility_figures
 from regor_ros.tools.map_benchmark import load_sequence
-
-from conftest import DATA, require_shared_data
 
 OUTDOOR = RegorConfig.preset("outdoor")
 SEQUENCE = "fastlio_avia_hku2"

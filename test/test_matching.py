@@ -3,8 +3,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from regor_ros.core.feature_index import FeatureIndex
-from regor_ros.core.matching import (feature_distance, generalized_mutual_matches, match_features,
-                                     mutual_matches)
+from regor_ros.core.matching import feature_distance, generalized_mutual_matches, match_features, mutual_matches
 
 
 def unit_rows(rng, n):

@@ -1,10 +1,15 @@
 import numpy as np
 import pytest
-
-from regor_ros.core.metrics import (PairStats, feature_match_recall, is_success, pair_stats,
-                                    rotation_error_deg, translation_error)
-
 from conftest import random_motion
+
+from regor_ros.core.metrics import (
+    PairStats,
+    feature_match_recall,
+    is_success,
+    pair_stats,
+    rotation_error_deg,
+    translation_error,
+)
 
 
 def rot_z(deg):

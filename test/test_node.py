@@ -1,9 +1,11 @@
 """The installed register_node, built with colcon and started as a process, over real DDS."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from conftest import load_map_query, moved_pair
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.srv import DescribeParameters, GetParameters
+from ros_helpers import TIMEOUT, NodeProcess, call, set_param
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -11,9 +13,6 @@ from regor_ros.core.metrics import is_success, rotation_error_deg, translation_e
 from regor_ros.ros.messages import matrix_from_pose
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import pose_to_matrix
-
-from conftest import load_map_query, moved_pair
-from ros_helpers import TIMEOUT, NodeProcess, call, set_param
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +176,8 @@ def test_map_mode_with_a_large_map_and_an_initial_guess(install, ros, pairs_node
     shifts = [np.array([1000.0 * i, 0.0, 0.0]) for i in range(3)]  # the map reaches 210 m out
     big = np.vstack([cloud + shift for shift in shifts])
     ros.publish(target=xyz_to_cloud(big, ros.header("map")))  # latched: replaces earlier tests' map
-    node = NodeProcess(install, "--params-file", str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
                        "-p", "mode:=map", "-r", "__node:=register_node")
     guesses = ros.create_publisher(PoseWithCovarianceStamped, "initial_guess", 1)
     try:
@@ -226,17 +226,19 @@ def test_map_mode_fuses_a_scan_sequence_along_odometry(install, ros, pairs_node)
     """The real Livox Avia scans received up to scan_000039, with odometry in a frame that is not the
     map's: alone that scan is not found in its map (measured: a wrong pose, withheld); fused with
     the four before it, the node publishes the newest scan's correct pose."""
-    from nav_msgs.msg import Odometry
     from builtin_interfaces.msg import Time
-    from regor_ros.tools.map_benchmark import load_sequence
     from conftest import DATA, require_shared_data
+    from nav_msgs.msg import Odometry
+
+    from regor_ros.tools.map_benchmark import load_sequence
 
     pairs_node.stop()
     require_shared_data("the accumulation test")
     cloud, _, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
     query = next(q for q in queries if q.id == "scan_000039")
     ros.publish(target=xyz_to_cloud(cloud, ros.header("map")))
-    node = NodeProcess(install, "--params-file", str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
                        "-p", "mode:=map", "-r", "__node:=register_node")
     odometry = ros.create_publisher(Odometry, "odometry", 10)
 

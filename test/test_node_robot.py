@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
+from conftest import DATA, load_map_query, require_shared_data
+from ros_helpers import TIMEOUT, NodeProcess
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
@@ -17,9 +19,6 @@ from regor_ros.ros.parameters import parse_pose
 from regor_ros.ros.pointcloud import cloud_to_xyz, xyz_to_cloud
 from regor_ros.ros.transport import PROFILE_VARIABLES
 from regor_ros.tools.pair_client import pose_to_matrix
-
-from conftest import DATA, load_map_query, require_shared_data
-from ros_helpers import TIMEOUT, NodeProcess
 
 ANSWER_TIMEOUT = 30.0
 
@@ -211,8 +210,8 @@ def test_the_source_up_comes_from_an_imu_and_a_tipped_over_sensor_gets_no_pose(i
     """Ground-vehicle scans (MulRan, OS1-64 on a car, 12 m apart) with the gravity prior: the
     source's up from an IMU that reports accelerations only (level: a pose), then from one whose
     orientation says the sensor lies on its side (the true pose is 90 deg outside the cone: none)."""
-    from sensor_msgs.msg import Imu
     from scipy.spatial.transform import Rotation
+    from sensor_msgs.msg import Imu
     require_shared_data("the IMU test")
     pair = DATA / "pairs_hard" / "mulran_riv02_048_to_044"
     src, tgt, T_gt = np.load(pair / "src.npy"), np.load(pair / "tgt.npy"), np.loadtxt(pair / "gt.txt")

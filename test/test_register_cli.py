@@ -8,12 +8,11 @@ import sys
 import numpy as np
 import open3d as o3d
 import pytest
+from conftest import moved_pair
 
 from regor_ros.core.metrics import is_success
 from regor_ros.io.cloud_io import CloudFileError, read_cloud
 from regor_ros.tools.picture import PICTURE_SIZE
-
-from conftest import moved_pair
 
 POINTS = np.random.default_rng(0).uniform(-1, 1, size=(200, 3))
 

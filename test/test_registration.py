@@ -1,14 +1,12 @@
 """The whole core on real pairs, each source moved by a random rigid motion."""
 import numpy as np
 import pytest
+from conftest import DATA, load_pair, moved_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.geometry import transform_points
-from regor_ros.core.metrics import (is_success, random_rigid_motion, rotation_error_deg,
-                                    translation_error)
+from regor_ros.core.metrics import is_success, random_rigid_motion, rotation_error_deg, translation_error
 from regor_ros.core.pipeline import _register_once, _undo_turn, regrid_rotation
-
-from conftest import DATA, load_pair, moved_pair, require_shared_data
 
 # (pair, overlap high enough that the quality gate must accept the correct pose)
 REAL_PAIRS = [("3dmatch_redkitchen_0_5_ds", True), ("3dmatch_redkitchen_6_21_ds", False),

@@ -3,15 +3,14 @@ publishes a wrong pose with confidence, and stops cleanly. Real DDS on loopback,
 import time
 
 import numpy as np
+from conftest import load_pair, moved_pair
+from ros_helpers import TIMEOUT, NodeProcess, set_param
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from regor_ros.core.metrics import is_success
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import PairClient, pose_to_matrix
-
-from conftest import load_pair, moved_pair
-from ros_helpers import TIMEOUT, NodeProcess, set_param
 
 
 def rss_mib(pid: int) -> float:

@@ -1,11 +1,10 @@
 """A relocalization hint restricts the search to where the robot can be."""
 import numpy as np
 import pytest
+from conftest import load_map_query
 
 from regor_ros.core import RegistrationError, RegorConfig, SearchRegion, prepare_cloud, register
 from regor_ros.core.metrics import is_success
-
-from conftest import load_map_query
 
 SHIFT = np.array([300.0, 0.0, 0.0])  # the second copy of the map: far beyond the scan's reach
 

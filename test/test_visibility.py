@@ -1,16 +1,15 @@
 """The free-space check: synthetic rooms with known answers, one-sided checks, real cross-place poses."""
 import numpy as np
 import pytest
+from conftest import DATA, load_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError
-from regor_ros.core.geometry import transform_points
 from regor_ros.core.evidence import Evidence
+from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.verification import assess, visibility_figures
 from regor_ros.core.visibility import RangeImage, parse_viewpoint
-
-from conftest import DATA, load_pair, require_shared_data
 
 SCENES = DATA / "pairs_scenes"
 
@@ -74,7 +73,8 @@ def test_true_pose_of_a_room_sees_no_surface_in_free_space(rooms):
     source, target, T_true = rooms
     figures = visibility_figures(T_true, source, target, INDOOR.acceptance)
     assert figures.source_violation < 0.02 and figures.target_violation < 0.02
-    verdict = assess(T_true, source, target, 5000, 0.9, matched(T_true, source), len(source), np.eye(6) * 1e-4, (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
+    verdict = assess(T_true, source, target, 5000, 0.9, matched(T_true, source), len(source), np.eye(6) * 1e-4,
+                     (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
     assert verdict.accepted, verdict.reason
 
 
@@ -82,7 +82,8 @@ def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
     source, target, T_true = rooms
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
     # every other check is given passing figures: only free space can reject it
-    verdict = assess(wrong, source, target, 5000, 0.9, matched(wrong, source), len(source), np.eye(6) * 1e-4, (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
+    verdict = assess(wrong, source, target, 5000, 0.9, matched(wrong, source), len(source), np.eye(6) * 1e-4,
+                     (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
     assert not verdict.accepted
     assert "saw through" in verdict.reason and "max_free_space_violation" in verdict.reason
     assert verdict.visibility.worst > 0.1   # the true pose: under 0.02
@@ -100,7 +101,8 @@ def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_c
     blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
     unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
     assert unknown.worst is None
-    assert assess(wrong, blind, map_like, 5000, 0.9, matched(wrong, blind), len(blind), np.eye(6) * 1e-4, (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR).accepted
+    assert assess(wrong, blind, map_like, 5000, 0.9, matched(wrong, blind), len(blind), np.eye(6) * 1e-4,
+                  (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR).accepted
 
 
 def test_empty_bins_are_unknown_not_free():

@@ -8,8 +8,16 @@ from .errors import ConfigError, RegistrationError
 from .features import MAX_ABS_COORDINATE, PreparedCloud
 from .geometry import attached_pose, parse_numbers, to_matrix, transform_points
 from .matching import match_features
-from .metrics import (ERROR_SIGMAS_99, INLIER_THRESHOLDS, correct_mask, error_sigmas, is_success,
-                      random_rigid_motion, rotation_error_deg, translation_error)
+from .metrics import (
+                      ERROR_SIGMAS_99,
+                      INLIER_THRESHOLDS,
+                      correct_mask,
+                      error_sigmas,
+                      is_success,
+                      random_rigid_motion,
+                      rotation_error_deg,
+                      translation_error,
+)
 from .pipeline import Candidate, Correspondences, RegistrationResult, prepare_cloud, register
 from .scan_history import AccumulationLimits, ScanHistory
 from .search_region import SearchRegion

@@ -29,68 +29,90 @@ def param(default: Any, description: str, low: Optional[float] = None,
 class FeatureConfig:
     """Downsampling, normals and FPFH descriptors (open3d)."""
 
-    voxel_size: float = param(0.05, "voxel edge for downsampling; every downsampled point is a keypoint [m]", 1e-4, 100.0)
+    voxel_size: float = param(0.05, "voxel edge for downsampling; every downsampled point is a keypoint "
+                                    "[m]", 1e-4, 100.0)
     normal_radius: float = param(0.10, "search radius for normal estimation [m]", 1e-4, 1000.0)
     normal_max_nn: int = param(30, "max neighbours for normal estimation", 3, 1000)
     fpfh_radius: float = param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
     fpfh_max_nn: int = param(100, "max neighbours for the FPFH descriptor", 5, 1000)
     remove_ground: bool = param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
-                                 "its rings make unrelated scans look aligned at the same sensor position (deviation; outdoor preset only)")
+                                 "its rings make unrelated scans look aligned at the same sensor position "
+                                 "(deviation; outdoor preset only)")
     min_points: int = param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
-    exact_search_limit: int = param(20000, "feature search is exact against clouds of up to this many keypoints (a scan: "
-                                     "the shared pairs have up to 13.6 k); a larger cloud (a map) gets an approximate "
-                                     "index, built once when it is prepared", 0, 100000000)
+    exact_search_limit: int = param(20000, "feature search is exact against clouds of up to this many keypoints "
+                                     "(a scan: the shared pairs have up to 13.6 k); a larger cloud (a map) gets an "
+                                     "approximate index, built once when it is prepared", 0, 100000000)
     search_probes: int = param(128, "cells of the approximate feature index scanned for a keypoint's K candidates: "
-                                "more finds more of the exact candidates, slower (128: 99.8 % of them on a real map)", 1, 100000)
+                                "more finds more of the exact candidates, slower (128: 99.8 % of them on a real "
+                                "map)", 1, 100000)
     search_probes_nearest: int = param(64, "cells of the approximate feature index scanned for a keypoint's nearest "
                                         "neighbour (64: 99.8 % of the exact ones on a real map)", 1, 100000)
     range_image_resolution: float = param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
-                                           "for the free-space check (coarser than the sensor's own resolution) [deg]", 0.05, 10.0)
+                                           "for the free-space check (coarser than the sensor's own resolution) "
+                                           "[deg]", 0.05, 10.0)
 
 
 @dataclass
 class InitialConfig:
     """SC2-PCR++ initial stage: seeds, consensus sets, hypotheses, FS-TCD selection."""
 
-    inlier_threshold: float = param(0.10, "residual below which a correspondence is an inlier of a hypothesis (tau) [m]", 1e-5, 100.0)
-    compatibility_threshold: float = param(0.10, "length difference scale of pairwise compatibility (d_thre) [m]", 1e-5, 100.0)
-    nms_radius: float = param(0.0, "radius of non-maximum suppression among seeds, in the source cloud (authors: 0.1 indoor, 0.3 outdoor) [m]", 0.0, 100.0)
-    seed_ratio: float = param(0.5, "fraction of correspondences used as seeds, by spectral confidence (authors: 0.2)", 0.001, 1.0)
+    inlier_threshold: float = param(0.10, "residual below which a correspondence is an inlier of a hypothesis (tau) "
+                                          "[m]", 1e-5, 100.0)
+    compatibility_threshold: float = param(0.10, "length difference scale of pairwise compatibility (d_thre) "
+                                                 "[m]", 1e-5, 100.0)
+    nms_radius: float = param(0.0, "radius of non-maximum suppression among seeds, in the source cloud (authors: "
+                                   "0.1 indoor, 0.3 outdoor) [m]", 0.0, 100.0)
+    seed_ratio: float = param(0.5, "fraction of correspondences used as seeds, by spectral confidence (authors: "
+                                   "0.2)", 0.001, 1.0)
     k1: int = param(20, "size of the first-stage consensus set of each seed", 4, 1000)
     k2: int = param(10, "size of the second-stage consensus set of each seed", 3, 1000)
-    max_correspondences: int = param(2500, "correspondences the quadratic consensus steps run on, chosen by initial.subset (authors: 8000 random); 0 = all", 0, 100000)
+    max_correspondences: int = param(2500, "correspondences the quadratic consensus steps run on, chosen by "
+                                           "initial.subset (authors: 8000 random); 0 = all", 0, 100000)
     subset: str = param("random", "which correspondences fill max_correspondences: random (authors) or best "
                          "(mutual nearest neighbours first, then by feature similarity; deviation)")
     power_iterations: int = param(10, "power iterations for leading eigenvectors", 1, 100)
     candidates: int = param(100, "feature-nearest target candidates per source point checked by FS-TCD (K)", 1, 1000)
     num_hypotheses: int = param(50, "hypotheses with the most inliers that FS-TCD compares", 1, 1000)
-    ranking: str = param("candidates", "which hypotheses FS-TCD compares: the num_hypotheses with the most inliers in the "
+    ranking: str = param("candidates", "which hypotheses FS-TCD compares: the num_hypotheses with the most inliers "
+                                       "in the "
                           "consensus subset (inliers, authors) or with the most source keypoints landing on one of "
                           "their K feature candidates (candidates, deviation: finds correct poses at low overlap)")
-    fs_tcd_threshold: float = param(0.05, "length difference below which two verified matches agree in FS-TCD [m]", 1e-5, 100.0)
+    fs_tcd_threshold: float = param(0.05, "length difference below which two verified matches agree in FS-TCD "
+                                          "[m]", 1e-5, 100.0)
     refine_threshold: float = param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
-    dedupe_hypotheses: bool = param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one (speed; deviation)")
-    fs_tcd_points: int = param(2500, "random subset of source keypoints verified by FS-TCD (deviation, for large clouds); 0 = all", 0, 1000000)
-    fs_tcd_rows: int = param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all (deviation)", 0, 100000)
+    dedupe_hypotheses: bool = param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one "
+                                          "(speed; deviation)")
+    fs_tcd_points: int = param(2500, "random subset of source keypoints verified by FS-TCD (deviation, for large "
+                                     "clouds); 0 = all", 0, 1000000)
+    fs_tcd_rows: int = param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all "
+                                  "(deviation)", 0, 100000)
     free_space_selection: bool = param(False, "FS-TCD picks the fittest hypothesis that passes the free-space check "
                                         "(acceptance.max_free_space_violation), not the fittest of all (deviation)")
-    reproduce_fs_tcd_quirk: bool = param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the previous hypothesis's matches)")
+    reproduce_fs_tcd_quirk: bool = param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the "
+                                                "previous hypothesis's matches)")
 
 
 @dataclass
 class RegenerationConfig:
     """Progressive regeneration stages, each a (neighbours, seeds) pair."""
 
-    stage_neighbors: List[int] = param([100, 20], "k nearest neighbours forming each local region, one entry per stage", 1, 1000)
+    stage_neighbors: List[int] = param([100, 20], "k nearest neighbours forming each local region, one entry per "
+                                                  "stage", 1, 1000)
     stage_seeds: List[int] = param([100, 500], "seed correspondences drawn per stage, one entry per stage", 1, 100000)
-    consistency_threshold: float = param(0.10, "sigma of the centre-aware three-point consistency; pairs agree within sigma/2 [m]", 1e-5, 100.0)
+    consistency_threshold: float = param(0.10, "sigma of the centre-aware three-point consistency; pairs agree "
+                                               "within sigma/2 [m]", 1e-5, 100.0)
     gmm_k: int = param(3, "neighbours of generalized mutual matching", 1, 50)
     point_support_ratio: float = param(0.3, "a pair is kept if consistent with this fraction of its region", 0.0, 1.0)
-    region_keep_ratio: float = param(0.5, "a region is dropped if it keeps less than this fraction of its pairs", 0.0, 1.0)
-    global_threshold: float = param(0.10, "length difference threshold of the global second-order filter [m]", 1e-5, 100.0)
-    global_cap: int = param(1500, "random subset size for the global second-order filter; 0 = all (deviation)", 0, 100000)
-    presample: int = param(0, "draw this many initial inliers with replacement before stage 1 (authors' 3DLoMatch: 100); 0 = off", 0, 100000)
-    reproduce_ctc_padding_bug: bool = param(False, "count padded slots in the region keep test as the authors' code does")
+    region_keep_ratio: float = param(0.5, "a region is dropped if it keeps less than this fraction of its "
+                                          "pairs", 0.0, 1.0)
+    global_threshold: float = param(0.10, "length difference threshold of the global second-order filter "
+                                          "[m]", 1e-5, 100.0)
+    global_cap: int = param(1500, "random subset size for the global second-order filter; 0 = all "
+                                  "(deviation)", 0, 100000)
+    presample: int = param(0, "draw this many initial inliers with replacement before stage 1 (authors' 3DLoMatch: "
+                              "100); 0 = off", 0, 100000)
+    reproduce_ctc_padding_bug: bool = param(False, "count padded slots in the region keep test as the authors' code "
+                                                   "does")
 
 
 @dataclass
@@ -98,7 +120,8 @@ class EstimationConfig:
     """Final pose: Kabsch, then Cauchy-weighted point-level refinement over all keypoints, then
     point-to-plane refinement."""
 
-    inlier_threshold: float = param(0.10, "nearest-neighbour distance below which a keypoint is a final inlier (tau_e) [m]", 1e-5, 100.0)
+    inlier_threshold: float = param(0.10, "nearest-neighbour distance below which a keypoint is a final inlier "
+                                          "(tau_e) [m]", 1e-5, 100.0)
     max_iterations: int = param(20, "iterations of the point-level refinement", 0, 1000)
     compare_initial_pose: bool = param(True, "also refine the initial stage's pose and keep whichever ends "
                                         "with more point-level inliers (guards against regeneration drift; deviation)")
@@ -131,11 +154,15 @@ class AcceptanceConfig:
                                      "pose's independent feature support by chance (a-contrario; the target's "
                                      "size and the matches set the chance; 1 is the usual bound, not fitted)",
                                      1e-12, 1e12)
-    max_free_space_violation: float = param(0.06, "largest fraction of one cloud's keypoints that may sit in space the other "
-                                             "cloud's sensor saw through, or, for a map, in front of the map's surfaces seen from the pose (free-space check; 1 = off; "
+    max_free_space_violation: float = param(0.06, "largest fraction of one cloud's keypoints that may sit in space "
+                                                  "the other "
+                                             "cloud's sensor saw through, or, for a map, in front of the map's "
+                                             "surfaces seen from the pose (free-space check; 1 = off; "
                                              "calibrated: regor-calibrate-gate)", 0.0, 1.0)
-    free_space_margin: float = param(0.15, "a keypoint is in seen free space only when nearer than the seen surface by more "
-                                      "than this plus free_space_margin_ratio x its range (presets: 3 voxels) [m]", 0.0, 100.0)
+    free_space_margin: float = param(0.15, "a keypoint is in seen free space only when nearer than the seen surface "
+                                           "by more "
+                                      "than this plus free_space_margin_ratio x its range (presets: 3 voxels) "
+                                      "[m]", 0.0, 100.0)
     free_space_margin_ratio: float = param(0.02, "range-proportional part of the free-space margin (depth noise grows "
                                             "with range)", 0.0, 1.0)
     free_space_sigmas: float = param(3.0, "the free-space margin also grows by this many standard deviations of "
@@ -144,14 +171,19 @@ class AcceptanceConfig:
     max_opposite_sides: float = param(0.5, "largest fraction of the matched surface that the two sensors may have seen "
                                        "from opposite sides (thin objects are; a majority means the clouds are back to "
                                        "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)
-    free_space_min_seen: int = param(50, "fewest keypoints landing on seen bins for the free-space figure to count", 1, 1000000)
-    map_view_min_seen: float = param(0.5, "against a cloud with no viewpoint (a map), seen from the pose's sensor position: "
+    free_space_min_seen: int = param(50, "fewest keypoints landing on seen bins for the free-space figure to "
+                                         "count", 1, 1000000)
+    map_view_min_seen: float = param(0.5, "against a cloud with no viewpoint (a map), seen from the pose's sensor "
+                                          "position: "
                                       "the map's side counts only when at least this fraction of the scan's keypoints "
-                                      "land on bins the map fills (under a right pose the map holds the scan's surfaces)",
+                                      "land on bins the map fills (under a right pose the map holds the scan's "
+                                      "surfaces)",
                                       0.0, 1.0)
     max_ambiguity: float = param(0.8, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
-                                  "overlap (refined, passing the visibility checks) keeps this fraction of both its point "
-                                  "and its feature support: a symmetric room; 10 = off (calibrated: regor-calibrate-gate)",
+                                  "overlap (refined, passing the visibility checks) keeps this fraction of both its "
+                                  "point "
+                                  "and its feature support: a symmetric room; 10 = off (calibrated: "
+                                  "regor-calibrate-gate)",
                                   0.0, 10.0)
     reverse_check: bool = param(False, "also register target to source and accept only if that returns the inverse "
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "

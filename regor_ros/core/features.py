@@ -14,8 +14,8 @@ from scipy.spatial import cKDTree
 
 from .config import FeatureConfig
 from .errors import RegistrationError
-from .geometry import transform_points
 from .feature_index import FeatureIndex
+from .geometry import transform_points
 from .map_view import MapView, trajectory_positions
 from .visibility import RangeImage
 

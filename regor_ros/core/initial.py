@@ -17,8 +17,8 @@ from scipy.spatial.distance import cdist
 from .config import InitialConfig
 from .consistency import compatibility, leading_eigenvector, second_order, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
-from .geometry import transform_points
 from .features import PreparedCloud
+from .geometry import transform_points
 from .gravity import GravityPrior
 from .matching import FeatureMatches
 

@@ -9,8 +9,17 @@ from typing import Dict, List, Optional, Union
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import (agreeing, inliers_at, plane_refine, plane_thresholds, point_refine,
-                       pose_covariance, poses_close, resolution_uncertainty, weighted_kabsch)
+from .estimate import (
+    agreeing,
+    inliers_at,
+    plane_refine,
+    plane_thresholds,
+    point_refine,
+    pose_covariance,
+    poses_close,
+    resolution_uncertainty,
+    weighted_kabsch,
+)
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
@@ -315,7 +324,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
-    support = evidence(T, src_cloud.points, tgt_cloud.points, tgt_cloud.normals, tgt_cloud.tree, init_src, initial_inlier,
+    support = evidence(T, src_cloud.points, tgt_cloud.points, tgt_cloud.normals, tgt_cloud.tree, init_src,
+                       initial_inlier,
                        config.estimation.inlier_threshold, config.features.voxel_size,
                        config.initial.inlier_threshold, config.features.fpfh_radius, initial.hypotheses_tried)
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),

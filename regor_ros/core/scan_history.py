@@ -2,9 +2,10 @@
 
 Odometry is accurate over a short stretch, so only the latest scans are fused: at most
 ``scans`` of them, none older than ``max_age`` and none whose sensor was farther than
-``max_distance`` (by odometry) from the newest one's. A scan is placed by the odometry at its stamp, interpolated between the
-two messages around it, or the nearest message within ``tolerance``; a scan with no odometry near
-its stamp is not fused (it is counted, so a user sees why fewer scans were fused).
+``max_distance`` (by odometry) from the newest one's. A scan is placed by the odometry at its
+stamp, interpolated between the two messages around it, or the nearest message within
+``tolerance``; a scan with no odometry near its stamp is not fused (it is counted, so a user
+sees why fewer scans were fused).
 """
 from __future__ import annotations
 

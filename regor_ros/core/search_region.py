@@ -10,6 +10,7 @@ position is used: the search stays global in orientation, which a hint often get
 from __future__ import annotations
 
 from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 

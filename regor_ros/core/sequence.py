@@ -13,8 +13,8 @@ from typing import List, Sequence
 
 import numpy as np
 
-from .geometry import transform_points
 from .features import RegistrationError, SeenCloud, check_viewpoint, clean_points
+from .geometry import transform_points
 from .visibility import ORIGIN
 
 ROTATION_TOLERANCE = 1e-3  # |R^T R - I| beyond this is not a rotation (odometry quaternions are unit)

@@ -25,9 +25,9 @@ from scipy.spatial import cKDTree
 
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine
-from .geometry import to_matrix, transform_points
 from .evidence import Evidence
 from .features import PreparedCloud
+from .geometry import to_matrix, transform_points
 from .gravity import GravityPrior
 from .metrics import rotation_error_deg
 from .visibility import VisibilityFigures, opposite_sides, seen_and_inside
@@ -143,8 +143,8 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
     of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
     keypoints of the pose's inlier pairs (the overlap); ``uncertainty`` how well a right pose is
     known at this resolution (estimate.resolution_uncertainty: the free-space check's allowance);
-    ``support`` the pose's evidence against chance. With a gravity ``prior`` the pose must keep to it, and so must a symmetric rival to
-    count."""
+    ``support`` the pose's evidence against chance. With a gravity ``prior`` the pose must keep to
+    it, and so must a symmetric rival to count."""
     gate = config.acceptance
     visibility = visibility_figures(T, source, target, gate, overlap_index, uncertainty)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)

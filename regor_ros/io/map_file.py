@@ -14,16 +14,12 @@ from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from scipy.spatial import cKDTree
-
-from ..core import PreparedCloud, RegorConfig, prepare_cloud
-from ..core import FeatureConfig
-from ..core import to_matrix
-from ..core import MAX_ABS_COORDINATE
-from .map_cache import CacheError, file_digest, load_map, map_key, save_map
+from ..core import MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
 from .cloud_io import CloudFileError, read_cloud
+from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
 CACHE_SUFFIX = ".regor-cache.npz"
 MIN_SANE_SHARE = 0.5    # a map file is mostly finite points within MAX_ABS_COORDINATE (organised clouds have NaN holes)

@@ -13,8 +13,7 @@ from __future__ import annotations
 
 from typing import Callable, Optional
 
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
-                       qos_profile_sensor_data)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
 QOS_KINDS = ("auto", "sensor_data", "reliable", "transient_local")
 AUTO_DEPTH = 5  # as the sensor-data profile: a burst is taken in order (each counted), the newest kept

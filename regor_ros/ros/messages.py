@@ -9,8 +9,7 @@ from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core import RegistrationResult
-from ..core import to_matrix, transform_points
+from ..core import RegistrationResult, to_matrix, transform_points
 
 INLIER_COLOUR = ColorRGBA(r=0.1, g=0.9, b=0.2, a=1.0)
 OUTLIER_COLOUR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.6)

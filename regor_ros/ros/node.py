@@ -12,46 +12,59 @@ queries that arrive meanwhile wait (the newest is kept), never meeting a half-bu
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 import threading
 import time
 from collections import deque
-from pathlib import Path
-from urllib.parse import parse_qs, urlparse
-import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional, Tuple
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.exceptions import ParameterException
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from geometry_msgs.msg import PoseArray, PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
+from nav_msgs.srv import LoadMap
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import Header, String
-from nav_msgs.srv import LoadMap
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core import ConfigError, PreparedCloud, RegistrationError, prepare_cloud, register
-from ..core import ScanHistory
-from ..core import attached_pose, transform_points
+from ..core import (
+    ConfigError,
+    PreparedCloud,
+    RegistrationError,
+    ScanHistory,
+    attached_pose,
+    prepare_cloud,
+    register,
+    transform_points,
+)
+from ..io.map_file import load_map_file
 from .diagnostics import Health, diagnostic_array
 from .imu_up import ImuUp
 from .initial_guess import search_region
 from .input_qos import InputSubscription, fixed_profile
-from .messages import (candidate_poses, correspondence_markers, matrix_from_pose, pose_stamped, pose_with_covariance,
-                       status_message)
+from .messages import (
+    candidate_poses,
+    correspondence_markers,
+    matrix_from_pose,
+    pose_stamped,
+    pose_with_covariance,
+    status_message,
+)
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 from .transport import use_large_data_profile
-from ..io.map_file import load_map_file
 
 WARN_THROTTLE_S = 5.0
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
@@ -72,7 +85,8 @@ def _stamp_seconds(header: Header) -> float:
 
 def _pose_key(msg: PoseWithCovarianceStamped) -> tuple:
     p = msg.pose.pose.position
-    return msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id, round(p.x, 6), round(p.y, 6), round(p.z, 6)
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id,
+            round(p.x, 6), round(p.y, 6), round(p.z, 6))
 
 
 class RegisterNode(LifecycleNode):
@@ -555,7 +569,8 @@ class RegisterNode(LifecycleNode):
             self.health.last_summary = result.summary()
             if result.accepted and region is not None and self._hint is hint:
                 self._hint = None  # the robot is found: the hint has done its job
-            extra = {"source_stamp": _stamp_seconds(src.header), "source_frame": src.header.frame_id, "target_frame": target_frame,
+            extra = {"source_stamp": _stamp_seconds(src.header), "source_frame": src.header.frame_id,
+                     "target_frame": target_frame,
                      "pose_of": settings.base_frame or src.header.frame_id,
                      "mode": settings.mode, **self.stats, **self.health.inputs, "accumulation": accumulation,
                      "source_up": source_up, "target_up": config.gravity.target_up,

@@ -14,10 +14,17 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from scipy.spatial.transform import Rotation
 
 from ..core import CHOICES as CORE_CHOICES
-from ..core import PRESETS, ConfigError, RegorConfig, param
-from ..core import parse_numbers, to_matrix
-from ..core import AccumulationLimits
-from ..core import ORIGIN, parse_viewpoint
+from ..core import (
+    ORIGIN,
+    PRESETS,
+    AccumulationLimits,
+    ConfigError,
+    RegorConfig,
+    param,
+    parse_numbers,
+    parse_viewpoint,
+    to_matrix,
+)
 from .input_qos import QOS_KINDS
 
 MODE_CHOICES = ("pairs", "map")
@@ -75,7 +82,8 @@ class NodeSettings:
                                 "$XDG_CACHE_HOME/regor_ros (~/.cache/regor_ros) when that folder is not "
                                 "writable (read only)")
 
-    initial_guess_sigmas: float = param(3.0, "an initial_guess restricts the search to this many standard deviations of "
+    initial_guess_sigmas: float = param(3.0, "an initial_guess restricts the search to this many standard "
+                                             "deviations of "
                                          "its position covariance around it", 0.0, 100.0)
     initial_guess_min_radius: float = param(2.0, "the search radius of an initial_guess is at least this, however "
                                              "certain it claims to be [m]", 0.0, 1e5)
@@ -104,7 +112,8 @@ class NodeSettings:
                             "prior (gravity.source_up follows it; gravity.target_up must be set): the reported "
                             "orientation, or the mean acceleration over imu_window when there is none; '' = "
                             "gravity.source_up as set (read only)")
-    imu_window: float = param(1.0, "seconds of IMU accelerations before a scan averaged into its up direction", 0.01, 60.0)
+    imu_window: float = param(1.0, "seconds of IMU accelerations before a scan averaged into its up "
+                                   "direction", 0.01, 60.0)
     sensor_to_imu: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the IMU in the source cloud's frame: 'x, y, z, "
                                 "roll, pitch, yaw' [m, rad]; only its rotation is used")
 

@@ -20,8 +20,7 @@ from collections import OrderedDict, defaultdict
 from pathlib import Path
 from typing import Dict, List, Optional, Set, TextIO
 
-from ..core import ConfigError, RegorConfig
-from ..core import PRESETS
+from ..core import PRESETS, ConfigError, RegorConfig
 from .batch_list import ListError, PairRow, read_pairs
 from .batch_worker import register_row, row_identity
 from .register_cli import parse_overrides
@@ -193,6 +192,7 @@ def open_client(workers: int, scheduler: Optional[str]):
     """A client of the cluster at ``scheduler``, or of a new local one on loopback with
     ``workers`` worker processes, each registering one pair at a time."""
     import logging
+
     from distributed import Client
     if scheduler:
         return Client(scheduler, timeout=30)
@@ -217,10 +217,12 @@ def plain_worker_environment():
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-batch", description=__doc__.split("\n\n")[0])
     parser.add_argument("pairs", help="the pair list: .csv with a header, or JSON lines "
-                                      "(columns: source, target; optional id, source_viewpoint, target_viewpoint, preset)")
+                                      "(columns: source, target; optional id, source_viewpoint, target_viewpoint, "
+                                      "preset)")
     parser.add_argument("--out", required=True, metavar="RESULTS.jsonl",
                         help="one JSON row per pair; rows already there are skipped (resume)")
-    parser.add_argument("--scans", metavar="DIR", help="folder the list's file names are in (default: the list's folder)")
+    parser.add_argument("--scans", metavar="DIR", help="folder the list's file names are in (default: the list's "
+                                                       "folder)")
     parser.add_argument("--preset", choices=PRESETS, default="indoor", help="for rows that name none")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter of every row's preset (repeatable)")
@@ -271,7 +273,8 @@ def main(argv=None) -> int:
           f"{counts['errors']} errors), {skipped} already in {args.out}; {seconds:.1f} s, "
           f"{counts['written'] / seconds:.2f} pairs/s; {counts['reused']} clouds reused")
     if results.errors:
-        print(f"regor-batch: {len(results.errors)} rows of {args.out} have an error (see their 'error')", file=sys.stderr)
+        print(f"regor-batch: {len(results.errors)} rows of {args.out} have an error (see their "
+              f"'error')", file=sys.stderr)
     return 1 if results.errors else 0
 
 

@@ -17,12 +17,11 @@ from typing import Dict, List
 
 import numpy as np
 
-from ..core import RegorConfig, register
-from ..core import is_success
+from ..core import RegorConfig, is_success, register
+from ..io.cloud_io import read_cloud
 from .batch import Progress, ResultFile, open_client, run_batch
 from .batch_list import read_pairs
 from .bench_results import write_results
-from ..io.cloud_io import read_cloud
 
 CACHE_CLOUDS = 16  # regor-batch's default
 

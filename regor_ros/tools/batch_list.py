@@ -15,8 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional
 
-from ..core import PRESETS, ConfigError
-from ..core import parse_viewpoint
+from ..core import PRESETS, ConfigError, parse_viewpoint
 
 COLUMNS = ("id", "source", "target", "source_viewpoint", "target_viewpoint", "preset")
 

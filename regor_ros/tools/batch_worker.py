@@ -16,8 +16,8 @@ from collections import OrderedDict
 from typing import Dict, Optional
 
 from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
-from .batch_list import PairRow
 from ..io.cloud_io import read_cloud
+from .batch_list import PairRow
 
 
 class PreparedClouds:

@@ -93,7 +93,8 @@ def _map_main(args, argv, parser) -> int:
             f"`{args.batch}` (loop-closure candidates: each scan is in several pairs), outdoor preset; "
             "success: RE < 5 deg and TE < 60 cm against the sequences' SLAM poses. Serial: register() "
             "pair by pair in one process. regor-batch: a new local cluster per run (its start counted), "
-            "worker processes started with this process's environment; identical: the same pose (every bit) and verdict "
+            "worker processes started with this process's environment; identical: the same pose (every bit) and "
+            "verdict "
             "as the serial run."))
     elif args.maps:
         report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,

@@ -16,10 +16,11 @@ columns when present) and the opposite-sides check (``acceptance.max_opposite_si
 rule) are not fitted.
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
-choices the thresholds in the middle of the tied ones (the widest margin on both sides). Leave one place (scene or sensor family) out:
-fit on every registration that does not involve it, report on those that do: the headline, first.
-The last line of each table fits on everything: the values the presets use, an in-sample figure. A second table reports the held-out runs again with
-the target's viewpoint dropped (a scan against a map) and with both dropped (map against map).
+choices the thresholds in the middle of the tied ones (the widest margin on both sides). Leave one
+place (scene or sensor family) out: fit on every registration that does not involve it, report on
+those that do: the headline, first. The last line of each table fits on everything: the values the
+presets use, an in-sample figure. A second table reports the held-out runs again with the target's
+viewpoint dropped (a scan against a map) and with both dropped (map against map).
 """
 from __future__ import annotations
 
@@ -31,8 +32,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from ..core import RegorConfig
-from ..core import Rival, ambiguity
+from ..core import RegorConfig, Rival, ambiguity
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
@@ -241,7 +241,8 @@ def report(samples: List[Sample]) -> str:
             table.append(_row(family, thresholds, figures))
             blind.append(_blind_row(family, thresholds, held))
             blind_totals += [score([s.blinded(k) for s in held], thresholds) for k in (True, False)]
-        table.append(f"| **sum over held-out places** | | | | | {totals[3]} | {totals[0]} | {totals[1]} | {totals[2]} |")
+        table.append(f"| **sum over held-out places** | | | | | {totals[3]} | {totals[0]} | {totals[1]} | "
+                     f"{totals[2]} |")
         blind.append(f"| **sum over held-out places** | | {blind_totals[0][3]} | {blind_totals[0][0]} | "
                      f"{blind_totals[0][1]} / {blind_totals[0][2]} | {blind_totals[1][1]} / {blind_totals[1][2]} |")
         thresholds = fit(group, kind)

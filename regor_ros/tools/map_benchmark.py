@@ -27,12 +27,21 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ..core import RegorConfig, ScanSequence, prepare_cloud, register
-from .peers import NO_PRIOR, PLANE
-from ..core import to_matrix
-from ..core import ERROR_SIGMAS_99, error_sigmas, is_success, rotation_error_deg, translation_error
+from ..core import (
+    ERROR_SIGMAS_99,
+    RegorConfig,
+    ScanSequence,
+    error_sigmas,
+    is_success,
+    prepare_cloud,
+    register,
+    rotation_error_deg,
+    to_matrix,
+    translation_error,
+)
 from ..io.map_file import load_map_file, read_trajectory, write_trajectory
 from .bench_results import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
+from .peers import NO_PRIOR, PLANE
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
@@ -234,7 +243,8 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
     sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]
     if not maps:
-        raise SystemExit(f"{folder} holds no sequence folder with queries.json" + (f" matching {name_filter!r}" if name_filter else ""))
+        matching = f" matching {name_filter!r}" if name_filter else ""
+        raise SystemExit(f"{folder} holds no sequence folder with queries.json{matching}")
     rows = []
     for sequence in maps:
         others = [s for s in sequences if s != sequence]

@@ -21,13 +21,35 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from ..core import (INLIER_THRESHOLDS, ORIGIN, ConfigError, RegorConfig, correct_mask, is_success, match_features,
-                    prepare_cloud, random_rigid_motion, rotation_error_deg, translation_error)
-from .bench_results import (EVIDENCE_COLUMNS, LEVEL_NOTE, STAGES, gate_columns, header, place, same_place, selected,
-                            write_results)
+from ..core import (
+    INLIER_THRESHOLDS,
+    ORIGIN,
+    ConfigError,
+    RegorConfig,
+    correct_mask,
+    is_success,
+    match_features,
+    prepare_cloud,
+    random_rigid_motion,
+    rotation_error_deg,
+    translation_error,
+)
+from .bench_results import (
+    EVIDENCE_COLUMNS,
+    LEVEL_NOTE,
+    STAGES,
+    gate_columns,
+    header,
+    place,
+    same_place,
+    selected,
+    write_results,
+)
 from .peers import DESCRIPTIONS, METHODS
 from .register_cli import parse_overrides
 
+CROSS_PLACE_NOTE = ("; cross-place: each source against one target of every other place per seed, and each target "
+                    "against one source, no true pose")
 UP_Z = np.array([0.0, 0.0, 1.0])  # a level-mounted sensor's up in its own frame
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total",
@@ -313,7 +335,7 @@ def run_pairs(args, argv, methods: List[str], parser) -> int:
 
     summary = summarise(rows)
     title = (header("regor_ros benchmark", argv) + f"Data: {', '.join(f'`{d}`' for d in args.data)} ({len(pairs)} pairs"
-              f"{'; cross-place: each source against one target of every other place per seed, and each target against one source, no true pose' if args.mismatched else ''}), rotation seeds: "
+              f"{CROSS_PLACE_NOTE if args.mismatched else ''}), rotation seeds: "
               f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
               "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
               "with FPFH included (registration alone in brackets); `published correct / WRONG`: poses that "

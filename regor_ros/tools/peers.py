@@ -13,8 +13,7 @@ from typing import Callable, Dict, Optional
 import numpy as np
 import open3d as o3d
 
-from ..core import PreparedCloud, RegorConfig, register
-from ..core import to_matrix
+from ..core import PreparedCloud, RegorConfig, register, to_matrix
 
 
 @dataclass
@@ -115,11 +114,14 @@ DESCRIPTIONS = {
     "regor": "Regor as configured (SC2-PCR++ initial stage, two regeneration stages, estimator)",
     "regor-1stage": "Regor with one regeneration stage (k=20, s=500), the paper's fast ablation",
     "sc2pcr++": "SC2-PCR++ initial stage alone, then the same point-level estimator (ablation)",
-    "regor-retry3": "Regor with acceptance.retries=3: a rejected pose is registered again on up to 3 re-drawn voxel grids",
+    "regor-retry3": "Regor with acceptance.retries=3: a rejected pose is registered again on up to 3 re-drawn voxel "
+                    "grids",
     "regor-noprior": "Regor without the gravity prior (the up directions unknown), whatever the run gives it",
     "regor-retry3-noprior": "regor-retry3 without the gravity prior",
-    "regor-reverse": "Regor with acceptance.reverse_check: an accepted pose must come back from the target-to-source registration",
-    "regor-fss": "Regor with initial.free_space_selection: FS-TCD picks the fittest hypothesis that passes the free-space check",
+    "regor-reverse": "Regor with acceptance.reverse_check: an accepted pose must come back from the "
+                     "target-to-source registration",
+    "regor-fss": "Regor with initial.free_space_selection: FS-TCD picks the fittest hypothesis that passes the "
+                 "free-space check",
     "regor-plane": "Regor with estimation.plane_refinement: the pose refined point-to-plane after the point level",
     "o3d-ransac": "Open3D FPFH + RANSAC, mutual filter, edge 0.9 + distance checkers, 100k iterations",
     "o3d-fgr": "Open3D Fast Global Registration on the same features",

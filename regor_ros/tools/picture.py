@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import RegistrationResult
-from ..core import transform_points
+from ..core import RegistrationResult, transform_points
 
 PICTURE_SIZE = (1500, 900)  # pixels
 MAX_POINTS = 15000

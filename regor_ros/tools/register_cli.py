@@ -12,10 +12,16 @@ import sys
 
 import numpy as np
 
-from ..core import ConfigError, RegistrationError, RegorConfig, register
-from ..core import PRESETS
-from ..core import rotation_error_deg, translation_error
-from ..core import parse_viewpoint
+from ..core import (
+    PRESETS,
+    ConfigError,
+    RegistrationError,
+    RegorConfig,
+    parse_viewpoint,
+    register,
+    rotation_error_deg,
+    translation_error,
+)
 from ..io.cloud_io import FORMATS, read_cloud
 
 

@@ -22,9 +22,9 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
+from ..io.cloud_io import read_cloud
 from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
-from ..io.cloud_io import read_cloud
 
 TRANSITIONS = {"configure": Transition.TRANSITION_CONFIGURE, "activate": Transition.TRANSITION_ACTIVATE,
                "deactivate": Transition.TRANSITION_DEACTIVATE, "cleanup": Transition.TRANSITION_CLEANUP}
