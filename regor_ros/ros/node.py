@@ -5,10 +5,9 @@ map that cannot be loaded fails configure with the reason), activate starts regi
 publishing, deactivate stops, cleanup releases the map and every entity. With ``autostart`` (the
 default) it configures and activates itself, so ``ros2 run`` works alone.
 
-Callbacks only store the newest messages; one worker thread prepares maps and registers, so a
-slow registration drops stale inputs (counted) instead of queueing them, and the executor keeps
-answering parameter changes. In map mode a new map is prepared before any query is registered:
-queries that arrive meanwhile wait (the newest is kept), never meeting a half-built map.
+Callbacks only store the newest messages (ros/inputs.py decides what is stale and what the worker
+does next); one worker thread prepares maps and registers, so the executor keeps answering
+parameter changes and service calls.
 """
 from __future__ import annotations
 
@@ -17,7 +16,6 @@ import re
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Tuple
 from urllib.parse import parse_qs, urlparse
@@ -54,6 +52,7 @@ from .diagnostics import Health, diagnostic_array
 from .imu_up import ImuUp
 from .initial_guess import search_region
 from .input_qos import InputSubscription, fixed_profile
+from .inputs import Cloud, InputBuffer, Job, PrepareMap, Register
 from .messages import (
     candidate_poses,
     correspondence_markers,
@@ -70,13 +69,6 @@ WARN_THROTTLE_S = 5.0
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
 QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
 OWN_POSES_KEPT = 20  # poses published, remembered so that one coming back as a hint is recognised
-
-
-@dataclass
-class Cloud:
-    header: Header
-    points: np.ndarray
-    serial: int  # increases with every message received on its topic
 
 
 def _stamp_seconds(header: Header) -> float:
@@ -113,15 +105,11 @@ class RegisterNode(LifecycleNode):
 
     def _reset(self) -> None:
         """The inputs, the map and the answers of one configured lifetime."""
-        self._source: Optional[Cloud] = None
-        self._target: Optional[Cloud] = None
-        self._serials = {"source": 0, "target": 0}
-        self._done = {"source": 0, "target": 0}   # serials last registered
+        self._inputs = InputBuffer()
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_key = None  # what the prepared map was made from (_map_key)
         self._map_frame = ""       # and the frame it is in
         self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
-        self._relocalize_after: Optional[int] = None  # a relocalize call waits for a source after this serial
         self._answer = (0, False, "")  # (source serial, accepted, what happened) of the last registration
         self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
         self._warned = {}  # kind of bad input -> when it was last logged
@@ -282,7 +270,7 @@ class RegisterNode(LifecycleNode):
         if self._imu is None:
             return config, {"direction": config.gravity.source_up, "from": "gravity.source_up"}
         with self._lock:
-            up, where = self._imu.up_at(_stamp_seconds(src.header), settings.imu_window,
+            up, where = self._imu.up_at(src.stamp, settings.imu_window,
                                         settings.imu_extrinsic()[:3, :3])
         text = "unknown" if up is None else " ".join(f"{v:.6f}" for v in up)
         return config.replace({"gravity.source_up": text}), {"direction": text, "from": where}
@@ -307,12 +295,12 @@ class RegisterNode(LifecycleNode):
             response.message = f"not registering: the node is {self.health.lifecycle} (activate it)"
             return response
         with self._lock:
-            after = self._serials["source"]
-            self._relocalize_after = after
+            after = self._inputs.serials["source"]
+            self._inputs.relocalize_after = after
             self._lock.notify_all()
             answered = self._lock.wait_for(lambda: self._answer[0] > after or self._stopping,
                                            self.settings.relocalize_timeout)
-            self._relocalize_after = None
+            self._inputs.relocalize_after = None
             _, response.success, response.message = self._answer
         if not answered:
             response.success = False
@@ -329,19 +317,12 @@ class RegisterNode(LifecycleNode):
         except RegistrationError as exc:
             self._bad_input(f"{which}_cloud skipped: {exc}")
             return
+        stamp = _stamp_seconds(msg.header)
         with self._lock:
             self.stats[f"{which}_clouds"] += 1
-            self._serials[which] += 1
-            previous = self._source if which == "source" else self._target
-            if previous is not None and previous.serial > self._done[which] and \
-                    (which == "source" or self.settings.mode == "pairs"):
-                self.stats["dropped_stale"] += 1
-            cloud = Cloud(msg.header, points, self._serials[which])
+            self.stats["dropped_stale"] += self._inputs.store(which, msg.header, stamp, points, self.settings.mode)
             if which == "source":
-                self._source = cloud
-                self._history.add_scan(_stamp_seconds(msg.header), points, self._history_capacity())
-            else:
-                self._target = cloud
+                self._history.add_scan(stamp, points, self._history_capacity())
             self._lock.notify_all()
 
     def _bad_input(self, text: str) -> None:
@@ -359,42 +340,11 @@ class RegisterNode(LifecycleNode):
 
     # --- the worker ---
 
-    def _ready(self):
-        """The (source, target) to register now, or None; in map mode the target is the prepared
-        map (None when it came from a file)."""
-        src, tgt = self._source, self._target
-        if src is None or src.serial == self._done["source"]:
-            return None
-        if self.settings.registration == "on_demand" and (
-                self._relocalize_after is None or src.serial <= self._relocalize_after):
-            return None
-        if self.settings.mode == "map":
-            return (src, tgt) if self._prepared_target is not None else None
-        if tgt is None or tgt.serial == self._done["target"]:
-            return None
-        tolerance = self.settings.max_stamp_difference
-        if tolerance and abs(_stamp_seconds(src.header) - _stamp_seconds(tgt.header)) > tolerance:
-            return None
-        return src, tgt
-
-    def _map_key(self, config, settings):
-        """What the map must be prepared from now: the file, or the newest target message (with
-        the target viewpoint), and the feature settings; None while there is no map."""
-        if settings.map_file:
-            return "file", settings.map_file, settings.map_trajectory_file, config.features
-        tgt = self._target
-        return None if tgt is None else ("topic", tgt.serial, settings.viewpoints()[1], config.features)
-
-    def _next_job(self):
-        """What the worker does next: ("prepare", map key, target), ("register", source, target) or None."""
+    def _next_job(self) -> Optional[Job]:
         if not self._active:
             return None
-        if self.settings.mode == "map":
-            key = self._map_key(self.config, self.settings)
-            if key is not None and key != self._prepared_key:
-                return "prepare", key, self._target
-        ready = self._ready()
-        return None if ready is None else ("register", *ready)
+        return self._inputs.next_job(self.settings, self.config.features, self._prepared_key,
+                                     self._prepared_target is not None)
 
     def _work(self) -> None:
         while True:
@@ -406,17 +356,14 @@ class RegisterNode(LifecycleNode):
                 if self._stopping:
                     return
                 config, settings, hint = self.config, self.settings, self._hint
-                if job[0] == "register":
-                    src, tgt = job[1], job[2]
-                    self._done["source"] = src.serial
-                    if tgt is not None:
-                        self._done["target"] = tgt.serial
-            if job[0] == "prepare":
-                self._prepare_map(job[1], job[2], config, settings)
+                if isinstance(job, Register):
+                    self._inputs.taken(job)
+            if isinstance(job, PrepareMap):
+                self._prepare_map(job.key, job.target, config, settings)
             else:
-                accepted, what = self._register(src, tgt, config, settings, hint)
+                accepted, what = self._register(job.source, job.target, config, settings, hint)
                 with self._lock:
-                    self._answer = (src.serial, accepted, what)
+                    self._answer = (job.source.serial, accepted, what)
                     self._lock.notify_all()
 
     def _prepare_map(self, key, tgt: Optional[Cloud], config, settings) -> None:
@@ -529,7 +476,7 @@ class RegisterNode(LifecycleNode):
         if limits.scans < 2:
             return src.points, None
         with self._lock:
-            sequence, info = self._history.sequence(_stamp_seconds(src.header), limits,
+            sequence, info = self._history.sequence(src.stamp, limits,
                                                     settings.viewpoints()[0])
         return (src.points if sequence is None else sequence), info
 
@@ -569,7 +516,7 @@ class RegisterNode(LifecycleNode):
             self.health.last_summary = result.summary()
             if result.accepted and region is not None and self._hint is hint:
                 self._hint = None  # the robot is found: the hint has done its job
-            extra = {"source_stamp": _stamp_seconds(src.header), "source_frame": src.header.frame_id,
+            extra = {"source_stamp": src.stamp, "source_frame": src.header.frame_id,
                      "target_frame": target_frame,
                      "pose_of": settings.base_frame or src.header.frame_id,
                      "mode": settings.mode, **self.stats, **self.health.inputs, "accumulation": accumulation,

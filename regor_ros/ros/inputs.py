@@ -1,0 +1,99 @@
+"""The node's inputs and what its worker does next, without ROS: the newest cloud per topic, what
+has been registered, and the next job (prepare a map, or register a source against a target).
+
+Only the newest message per topic is kept, so a slow registration drops stale inputs (counted)
+instead of queueing them. In map mode a new map is prepared before any query is registered:
+queries that arrive meanwhile wait (the newest is kept), never meeting a half-built map. The
+caller holds one lock around every call.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Optional, Union
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Cloud:
+    header: Any          # the message's header, carried to the outputs' stamps
+    stamp: float         # [s]
+    points: np.ndarray
+    serial: int          # increases with every message received on its topic
+
+
+@dataclass(frozen=True)
+class PrepareMap:
+    key: tuple                 # what the map is made from (InputBuffer.map_key)
+    target: Optional[Cloud]    # the target message, or None for a map file
+
+
+@dataclass(frozen=True)
+class Register:
+    source: Cloud
+    target: Optional[Cloud]    # None against the prepared map
+
+
+Job = Union[PrepareMap, Register]
+
+
+class InputBuffer:
+    """The newest source and target, the serials registered, and a relocalize call waiting."""
+
+    def __init__(self):
+        self.source: Optional[Cloud] = None
+        self.target: Optional[Cloud] = None
+        self.serials = {"source": 0, "target": 0}
+        self.done = {"source": 0, "target": 0}     # serials last registered
+        self.relocalize_after: Optional[int] = None  # a relocalize call waits for a source after this serial
+
+    def store(self, which: str, header, stamp: float, points: np.ndarray, mode: str) -> bool:
+        """Keep the newest cloud of ``which`` ("source" or "target"); True when it replaced one that
+        was never registered (a stale input dropped; in map mode a target is a map, never stale)."""
+        self.serials[which] += 1
+        previous = self.source if which == "source" else self.target
+        stale = (previous is not None and previous.serial > self.done[which]
+                 and (which == "source" or mode == "pairs"))
+        cloud = Cloud(header, stamp, points, self.serials[which])
+        if which == "source":
+            self.source = cloud
+        else:
+            self.target = cloud
+        return stale
+
+    def map_key(self, settings, features) -> Optional[tuple]:
+        """What the map must be prepared from now: the file, or the newest target message (with
+        the target viewpoint), and the feature settings; None while there is no map."""
+        if settings.map_file:
+            return "file", settings.map_file, settings.map_trajectory_file, features
+        if self.target is None:
+            return None
+        return "topic", self.target.serial, settings.viewpoints()[1], features
+
+    def next_job(self, settings, features, prepared_key, map_ready: bool) -> Optional[Job]:
+        """The worker's next job, or None. ``prepared_key`` is what the map in use was made from
+        and ``map_ready`` whether there is one."""
+        if settings.mode == "map":
+            key = self.map_key(settings, features)
+            if key is not None and key != prepared_key:
+                return PrepareMap(key, None if settings.map_file else self.target)
+        src, tgt = self.source, self.target
+        if src is None or src.serial == self.done["source"]:
+            return None
+        if settings.registration == "on_demand" and (
+                self.relocalize_after is None or src.serial <= self.relocalize_after):
+            return None
+        if settings.mode == "map":
+            return Register(src, None) if map_ready else None
+        if tgt is None or tgt.serial == self.done["target"]:
+            return None
+        tolerance = settings.max_stamp_difference
+        if tolerance and abs(src.stamp - tgt.stamp) > tolerance:
+            return None
+        return Register(src, tgt)
+
+    def taken(self, job: Register) -> None:
+        """The worker took ``job``: its clouds are registered."""
+        self.done["source"] = job.source.serial
+        if job.target is not None:
+            self.done["target"] = job.target.serial
