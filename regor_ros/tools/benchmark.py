@@ -19,6 +19,10 @@ from .pairs_benchmark import run_pairs
 from .peers import METHODS
 from .register_cli import parse_overrides
 
+STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
+               f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
+               "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
+
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
@@ -44,6 +48,10 @@ def main(argv=None) -> int:
     parser.add_argument("--maps", type=Path, metavar="DIR",
                         help="instead: scan-to-map relocalization on every sequence folder in DIR "
                              "(map.npy, queries.json, queries/<id>/), Regor and KISS-Matcher")
+    parser.add_argument("--stress", action="store_true",
+                        help="with --maps: each map enlarged with the other places' maps (the true place "
+                             "still inside), queries single, thinned to every 4th point and fused: chance "
+                             "support is high")
     parser.add_argument("--map-scaling", type=Path, metavar="SEQUENCE",
                         help="instead: tile the map of one sequence folder --tiles times and measure "
                              "preparation, registration time and peak memory against map size")
@@ -98,8 +106,8 @@ def _map_main(args, argv, parser) -> int:
             "as the serial run."))
     elif args.maps:
         report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,
-                          header("regor_ros scan-to-map benchmark", argv) + about + LEVEL_NOTE * args.level,
-                          args.pairs)
+                          header("regor_ros scan-to-map benchmark", argv) + about + LEVEL_NOTE * args.level
+                          + STRESS_NOTE * args.stress, args.pairs, args.stress)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header(
             "regor_ros map scaling benchmark", argv) + about + " The map is tiled: identical copies "

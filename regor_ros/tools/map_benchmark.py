@@ -48,6 +48,8 @@ MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
 # --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
 LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
 INPUTS = ("single", "sequence")
+STRESS_INPUTS = ("single", "thinned", "sequence")
+THINNING = 4  # --stress: every 4th point of a scan, a sparse sensor's density (64 beams -> 16)
 MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
               *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "num_inliers",
@@ -77,7 +79,7 @@ class Query:
     history: Optional[ScanSequence]  # the scans received up to it with odometry; None for a submap
 
     def cloud(self, which: str):
-        return self.scan if which == "single" else self.history
+        return {"single": self.scan, "thinned": self.scan[::THINNING], "sequence": self.history}[which]
 
 
 def load_sequence(folder: Path):
@@ -110,13 +112,31 @@ def _score(T: np.ndarray, truths: List[np.ndarray]) -> tuple:
     return is_success(T, best, "outdoor"), rotation_error_deg(T, best), translation_error(T, best)
 
 
+def enlarged(cloud: np.ndarray, trajectory: Optional[np.ndarray], others: List[str]):
+    """(cloud, trajectory) with every other place's map beside it, TILE_SPACING apart along x: a
+    target several times larger where the true place is still inside, so chance support grows."""
+    clouds, trajectories = [cloud], [trajectory]
+    for k, other in enumerate(others, start=1):
+        shift = to_matrix(np.eye(3), np.array([k * TILE_SPACING, 0.0, 0.0]))
+        other_cloud, other_trajectory, _ = load_sequence(Path(other))
+        clouds.append(other_cloud + shift[:3, 3])
+        trajectories.append(None if other_trajectory is None else shift @ other_trajectory)
+    known = [t for t in trajectories if t is not None]
+    return np.vstack(clouds), (np.concatenate(known) if len(known) == len(trajectories) else None)
+
+
 def _run_map(job) -> List[dict]:
     """One method on every query against one map (in a child process): the map's own queries,
-    then every other sequence's (cross-map: no true pose)."""
-    folder, others, method, config = job
+    then every other sequence's (cross-map: no true pose). Under ``stress`` the map is enlarged
+    with the other places' maps instead (``enlarged``), its own queries also go in thinned, and
+    there is no cross-map set (the other places are inside the map)."""
+    folder, others, method, config, stress = job
     cloud, trajectory, queries = load_sequence(Path(folder))
-    for other in others:
-        queries += load_sequence(Path(other))[2]
+    if stress:
+        cloud, trajectory = enlarged(cloud, trajectory, others)
+    else:
+        for other in others:
+            queries += load_sequence(Path(other))[2]
     name = Path(folder).name
     base = {"map": name, "method": method, "kind": "outdoor", "map_points": len(cloud)}
     regor = method in REGOR_VARIANTS
@@ -128,13 +148,13 @@ def _run_map(job) -> List[dict]:
         base.update(map_seconds=time.perf_counter() - start, map_keypoints=len(prepared))
     rows = []
     for query in queries:
-        for which in INPUTS:
+        for which in STRESS_INPUTS if stress else INPUTS:
             source = query.cloud(which)
             if source is None:
                 continue
             same = query.sequence == name
             row = dict(base, query=f"{query.sequence}/{query.id}", input=which, query_kind=query.kind,
-                       set="same" if same else "cross", scans=1 if which == "single" else len(source.scans),
+                       set="same" if same else "cross", scans=len(source.scans) if which == "sequence" else 1,
                        pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
             if regor:
                 result = register(source, prepared, config)
@@ -144,7 +164,7 @@ def _run_map(job) -> List[dict]:
                     row["error_sigmas"] = error_sigmas(T, query.truth, result.covariance)
             else:
                 import kiss_matcher as km
-                points = source if which == "single" else source.fused().points
+                points = source if which != "sequence" else source.fused().points
                 matcher = km.KISSMatcher(km.KISSMatcherConfig(config.features.voxel_size))
                 start = time.perf_counter()
                 solution = matcher.estimate(np.asarray(points, np.float32), np.asarray(cloud, np.float32))
@@ -236,10 +256,11 @@ def map_report(rows: List[dict], header: str) -> str:
 
 
 def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str,
-             name_filter: Optional[str] = None) -> str:
+             name_filter: Optional[str] = None, stress: bool = False) -> str:
     """The map of every sequence under ``folder`` (whose name contains one of the comma-separated
     ``name_filter``) with every method, against its own queries and every other sequence's;
-    writes maps.md, .csv and .png."""
+    writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
+    maps, its queries single, thinned and fused (stress.md, .csv and .png)."""
     sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]
     if not maps:
@@ -247,16 +268,17 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
         raise SystemExit(f"{folder} holds no sequence folder with queries.json{matching}")
     rows = []
     for sequence in maps:
-        others = [s for s in sequences if s != sequence]
+        others = [s for s in sequences if s != sequence
+                  and not (stress and place_of(Path(s).name) == place_of(Path(sequence).name))]
         for method in methods:
-            new = _in_child(_run_map, (sequence, others, method, config))
+            new = _in_child(_run_map, (sequence, others, method, config, stress))
             rows += new
             own = [r for r in new if r["set"] == "same"]
             print(f"{Path(sequence).name} {method}: {sum(r['success'] for r in own)} of {len(own)} correct, "
                   f"{sum(r['accepted'] is True and r['success'] for r in own)} published; cross-map: "
                   f"{sum(r['accepted'] is True for r in new if r['set'] == 'cross')} published", flush=True)
     report = map_report(rows, header)
-    write_results(out, "maps", report, rows, MAP_FIELDS, _plot_maps)
+    write_results(out, "stress" if stress else "maps", report, rows, MAP_FIELDS, _plot_maps)
     return report
 
 
