@@ -53,13 +53,3 @@ def restrict(target: PreparedCloud, region: SearchRegion, source: PreparedCloud)
     return PreparedCloud(points, target.normals[keep], features, cKDTree(points),
                          target.index.restricted(keep, features), config, target.input_size,
                          target.views, target.map_view)
-
-
-def outside(T: np.ndarray, region: SearchRegion) -> str:
-    """Why the pose is outside the region (empty when inside). Horizontal distance only: hints are
-    mostly 2D pose estimates on the ground, which say nothing of the sensor's height."""
-    offset = float(np.linalg.norm(T[:2, 3] - region.centre[:2]))
-    if offset <= region.radius:
-        return ""
-    return (f"the pose puts the source {offset:.1f} m from the hinted position, outside its "
-            f"{region.radius:.1f} m search region")
