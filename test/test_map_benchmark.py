@@ -85,3 +85,21 @@ def test_tiles_are_turned_copies_far_apart():
     for k, pose in enumerate(poses):
         np.testing.assert_allclose(big[100 * k:100 * (k + 1)], cloud @ pose[:3, :3].T + pose[:3, 3])
     assert np.linalg.norm(poses[1][:3, 3] - poses[0][:3, 3]) >= 400.0
+
+
+def test_the_stress_set_enlarges_each_map_with_the_other_places_and_thins_the_scans(tmp_path):
+    """The Avia sequence's map with the MulRan map beside it (the true place still inside): its
+    queries single, thinned and fused against the enlarged map; no cross-map set."""
+    folder = short_sequence(tmp_path)
+    other = folder.parent / "scaloam_mulran_kaist03"
+    other.symlink_to(DATA / "maps" / "scaloam_mulran_kaist03", target_is_directory=True)
+    assert main(["--maps", str(folder.parent), "--stress", "--pairs", "avia", "--methods", "regor",
+                 "--out", str(tmp_path / "out")]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "out" / "stress.csv")))
+    assert {r["set"] for r in rows} == {"same"}
+    assert [(r["query"].split("/")[1], r["input"]) for r in rows] == \
+        [(q, i) for q in QUERIES for i in ("single", "thinned", "sequence")]
+    own = int(np.load(DATA / "maps" / SEQUENCE / "map.npy", mmap_mode="r").shape[0])
+    assert int(rows[0]["map_points"]) > 2 * own   # the other place's map is in it
+    assert not any(r["accepted"] == "True" and r["success"] == "False" for r in rows), rows
+    assert "Stress (--stress)" in (tmp_path / "out" / "stress.md").read_text()
