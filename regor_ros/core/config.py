@@ -166,8 +166,9 @@ class AcceptanceConfig:
     free_space_margin_ratio: float = param(0.02, "range-proportional part of the free-space margin (depth noise grows "
                                             "with range)", 0.0, 1.0)
     free_space_sigmas: float = param(3.0, "the free-space margin also grows by this many standard deviations of "
-                                      "the pose's own uncertainty at each point (its covariance: worst "
-                                      "translation plus range times worst turn); 0 = off", 0.0, 10.0)
+                                      "how well a right pose is known at the voxel size (a voxel's sigma plus a "
+                                      "point's range times the turn that moves the inliers by as much); 0 = off",
+                                      0.0, 10.0)
     max_opposite_sides: float = param(0.5, "largest fraction of the matched surface that the two sensors may have seen "
                                        "from opposite sides (thin objects are; a majority means the clouds are back to "
                                        "back: wrong; needs both viewpoints; 1 = off)", 0.0, 1.0)
