@@ -46,7 +46,8 @@ def test_a_right_pose_lies_on_the_maps_surfaces_and_its_support_is_beyond_chance
     assert is_success(result.transform, query.truth, "outdoor") and result.accepted, result.reason
     assert result.evidence.surface_agreement > 0.9
     assert result.evidence.log10_false_alarms < -5
-    assert result.candidates and result.summary()["candidates"][0] == result.candidates[0].support
+    assert np.array_equal(result.candidates[0].transform, result.transform)   # its own pose leads
+    assert result.summary()["candidates"][0] == result.candidates[0].support > 0
 
 
 def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncertainty_counts(avia_map):

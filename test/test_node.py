@@ -43,8 +43,8 @@ def test_registers_a_real_pair_published_to_it(pairs_node, ros):
     assert ros.spin_until(lambda: ros.candidates, 5.0)
     candidates = ros.candidates[-1]
     assert candidates.header.frame_id == "map" and 1 <= len(candidates.poses) <= 5
-    assert any(is_success(matrix_from_pose(p), T_gt, kind) for p in candidates.poses)
-    assert status["candidate_margin"] is None or status["candidate_margin"] >= 1.0
+    np.testing.assert_allclose(matrix_from_pose(candidates.poses[0]), T, atol=1e-6)   # the published pose first
+    assert len(status["candidates"]) >= len(candidates.poses)
 
 
 def test_parameters_are_declared_with_descriptions_and_ranges(pairs_node, ros):

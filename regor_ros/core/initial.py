@@ -234,3 +234,12 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
                    for kept, _ in out):
             out.append((poses[i], int(supports[i])))
     return out
+
+
+def led_by(T: np.ndarray, candidates: list, inlier_threshold: float) -> list:
+    """The candidates with the final pose ``T`` first, carrying the best support of the ones at
+    its place, then the others (best supported first): the published pose and its rivals."""
+    def same_place(pose):
+        return poses_close(pose, T, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+    support = max((s for pose, s in candidates if same_place(pose)), default=0)
+    return [(T, support)] + [(pose, s) for pose, s in candidates if not same_place(pose)]

@@ -23,7 +23,7 @@ from .estimate import (
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
-from .initial import initial_stage
+from .initial import initial_stage, led_by
 from .matching import match_features
 from .metrics import random_rigid_motion
 from .regenerate import regenerate
@@ -50,7 +50,8 @@ class Correspondences:
 @dataclass
 class Candidate:
     """A distinct pose the search found, with its FS-TCD support (feature-verified matches that
-    agree in length): the winner's margin over the runner-up says how unique the place is."""
+    agree in length); the result's first is its own pose, and its margin over the next says how
+    unique the place is."""
 
     transform: np.ndarray   # 4x4 T_target_source
     support: int
@@ -78,11 +79,11 @@ class RegistrationResult:
     rivals: List[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
     ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
     evidence: Optional[Evidence] = None  # the pose's support against chance (core/evidence.py)
-    candidates: List[Candidate] = field(default_factory=list)  # distinct places found, best supported first
+    candidates: List[Candidate] = field(default_factory=list)  # this pose, then the other places found
 
     @property
     def candidate_margin(self) -> Optional[float]:
-        """The best candidate's support over the runner-up's (None with fewer than two)."""
+        """This pose's support over the best other place's (None when the search found no other)."""
         if len(self.candidates) < 2:
             return None
         return self.candidates[0].support / max(self.candidates[1].support, 1)
@@ -330,7 +331,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
         rivals=verdict.rivals, ambiguity=verdict.ambiguity, evidence=support,
-        candidates=[Candidate(pose, support) for pose, support in initial.candidates])
+        candidates=[Candidate(pose, support)
+                    for pose, support in led_by(T, initial.candidates, config.initial.inlier_threshold)])
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,

@@ -52,8 +52,8 @@ class NodeSettings:
     target_qos: str = param("auto", "QoS of target_cloud: auto, sensor_data, reliable, or transient_local "
                              "(see source_qos)")
     max_markers: int = param(500, "most correspondence lines published on correspondences", 0, 100000)
-    max_candidates: int = param(5, "most distinct candidate poses published on candidates (the search's places, "
-                                 "best supported first, after every registration); 0 = none", 0, 1000)
+    max_candidates: int = param(5, "most poses published on candidates after every registration: the pose, then the "
+                                 "other places the search found, best supported first; 0 = none", 0, 1000)
     marker_line_width: float = param(0.01, "line width of the correspondence markers [m]", 1e-4, 10.0)
     publish_aligned_cloud: bool = param(False, "publish the source cloud moved into the target frame "
                                          "on aligned_cloud")
