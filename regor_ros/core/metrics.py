@@ -1,8 +1,6 @@
 """Evaluation metrics of the paper (SPEC section 4): RE, TE, success, IP, IN, INR, FMR."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -52,36 +50,3 @@ def correct_mask(source: np.ndarray, target: np.ndarray, T_gt: np.ndarray, thres
     """Correspondences whose source point lands within ``threshold`` of its target under the truth."""
     moved = source @ T_gt[:3, :3].T + T_gt[:3, 3]
     return np.linalg.norm(moved - target, axis=1) < threshold
-
-
-@dataclass
-class PairStats:
-    """Per-pair figures from which the dataset means are taken."""
-
-    inliers_final: int      # IN_a: correct pairs among the final correspondences
-    final_count: int
-    inliers_initial: int    # IN_b: correct pairs among the initial feature matches
-    initial_count: int
-
-    @property
-    def inlier_precision(self) -> float:          # IP, 0 when there are no final pairs
-        return self.inliers_final / self.final_count if self.final_count else 0.0
-
-    @property
-    def inlier_number_ratio(self) -> float:       # INR, IN_a / IN_b (IN_a when IN_b = 0)
-        return self.inliers_final / self.inliers_initial if self.inliers_initial else float(self.inliers_final)
-
-    @property
-    def initial_inlier_ratio(self) -> float:
-        return self.inliers_initial / self.initial_count if self.initial_count else 0.0
-
-
-def pair_stats(final_src, final_tgt, init_src, init_tgt, T_gt, threshold: float) -> PairStats:
-    return PairStats(int(correct_mask(final_src, final_tgt, T_gt, threshold).sum()), len(final_src),
-                     int(correct_mask(init_src, init_tgt, T_gt, threshold).sum()), len(init_src))
-
-
-def feature_match_recall(stats, min_ratio: float = 0.05) -> float:
-    """FMR: fraction of pairs whose initial matches are more than ``min_ratio`` correct."""
-    stats = list(stats)
-    return float(np.mean([s.initial_inlier_ratio > min_ratio for s in stats])) if stats else 0.0

@@ -41,7 +41,7 @@ from ..core import (
 )
 from ..io.map_file import load_map_file, read_trajectory, write_trajectory
 from .bench_results import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
-from .peers import NO_PRIOR, PLANE
+from .peers import NO_PRIOR, PLANE, kiss_matcher_pose
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
@@ -163,14 +163,8 @@ def _run_map(job) -> List[dict]:
                 if same:
                     row["error_sigmas"] = error_sigmas(T, query.truth, result.covariance)
             else:
-                import kiss_matcher as km
                 points = source if which != "sequence" else source.fused().points
-                matcher = km.KISSMatcher(km.KISSMatcherConfig(config.features.voxel_size))
-                start = time.perf_counter()
-                solution = matcher.estimate(np.asarray(points, np.float32), np.asarray(cloud, np.float32))
-                seconds = time.perf_counter() - start
-                T = to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3))
-                accepted = bool(solution.valid)
+                T, seconds, accepted = kiss_matcher_pose(points, cloud, config.features.voxel_size)
             success, rot, trans = _score(T, [query.truth]) if same else (False, np.nan, np.nan)
             row.update(success=success, accepted=accepted, rotation_error_deg=rot, translation_error_m=trans,
                        seconds=seconds)

@@ -84,15 +84,21 @@ def open3d_fgr(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> Me
     return _o3d_result(result, src, tgt, time.perf_counter() - start)
 
 
-def kiss_matcher(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> MethodResult:
-    """KISS-Matcher (pip kiss-matcher) on the raw clouds, at the same voxel size."""
+def kiss_matcher_pose(source: np.ndarray, target: np.ndarray, voxel_size: float):
+    """(T_target_source, seconds, its valid flag) of KISS-Matcher (pip kiss-matcher) on raw clouds."""
     import kiss_matcher as km
-    matcher = km.KISSMatcher(km.KISSMatcherConfig(config.features.voxel_size))
+    matcher = km.KISSMatcher(km.KISSMatcherConfig(voxel_size))
     start = time.perf_counter()
-    solution = matcher.estimate(np.asarray(raw_src, np.float32), np.asarray(raw_tgt, np.float32))
+    solution = matcher.estimate(np.asarray(source, np.float32), np.asarray(target, np.float32))
     seconds = time.perf_counter() - start
-    T = to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3))
-    return MethodResult(T, seconds, includes_features=True, accepted=bool(solution.valid))
+    return (to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3)), seconds,
+            bool(solution.valid))
+
+
+def kiss_matcher(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> MethodResult:
+    """KISS-Matcher on the raw clouds, at the same voxel size."""
+    T, seconds, valid = kiss_matcher_pose(raw_src, raw_tgt, config.features.voxel_size)
+    return MethodResult(T, seconds, includes_features=True, accepted=valid)
 
 
 METHODS: Dict[str, Callable] = {
