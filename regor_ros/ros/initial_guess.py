@@ -8,7 +8,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from ..core import SearchRegion
 
 
-def search_region(msg: PoseWithCovarianceStamped, sigmas: float, min_radius: float,
+def region_of_guess(msg: PoseWithCovarianceStamped, sigmas: float, min_radius: float,
                   max_radius: float) -> SearchRegion:
     """Centre at the hinted position; radius ``sigmas`` standard deviations of its least certain
     direction (from the position block of the covariance), within [min_radius, max_radius]. A

@@ -50,7 +50,7 @@ from ..core import (
 from ..io.map_file import load_map_file
 from .diagnostics import Health, diagnostic_array
 from .imu_up import ImuUp
-from .initial_guess import search_region
+from .initial_guess import region_of_guess
 from .input_qos import InputSubscription, fixed_profile
 from .inputs import Cloud, InputBuffer, Job, PrepareMap, Register
 from .messages import (
@@ -109,7 +109,7 @@ class RegisterNode(LifecycleNode):
         self._prepared_target: Optional[PreparedCloud] = None
         self._prepared_key = None  # what the prepared map was made from (_map_key)
         self._map_frame = ""       # and the frame it is in
-        self._hint: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
+        self._guess: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
         self._answer = (0, False, "")  # (source serial, accepted, what happened) of the last registration
         self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
         self._warned = {}  # kind of bad input -> when it was last logged
@@ -282,7 +282,7 @@ class RegisterNode(LifecycleNode):
         if _pose_key(msg) in self._own_poses:
             return
         with self._lock:
-            self._hint = msg
+            self._guess = msg
             self._lock.notify_all()
         self.get_logger().info(
             f"initial guess received: ({msg.pose.pose.position.x:.1f}, {msg.pose.pose.position.y:.1f}, "
@@ -355,13 +355,13 @@ class RegisterNode(LifecycleNode):
                     job = self._next_job()
                 if self._stopping:
                     return
-                config, settings, hint = self.config, self.settings, self._hint
+                config, settings, guess = self.config, self.settings, self._guess
                 if isinstance(job, Register):
                     self._inputs.taken(job)
             if isinstance(job, PrepareMap):
                 self._prepare_map(job.key, job.target, config, settings)
             else:
-                accepted, what = self._register(job.source, job.target, config, settings, hint)
+                accepted, what = self._register(job.source, job.target, config, settings, guess)
                 with self._lock:
                     self._answer = (job.source.serial, accepted, what)
                     self._lock.notify_all()
@@ -455,18 +455,18 @@ class RegisterNode(LifecycleNode):
         response.result = LoadMap.Response.RESULT_SUCCESS
         return response
 
-    def _search_region(self, hint: Optional[PoseWithCovarianceStamped], target_frame: str, settings):
-        """The hint as a search region, or None; a hint in another frame is dropped with a warning."""
-        if hint is None:
+    def _guess_region(self, guess: Optional[PoseWithCovarianceStamped], target_frame: str, settings):
+        """The initial guess as a search region, or None; a guess in another frame is dropped with a warning."""
+        if guess is None:
             return None
-        if hint.header.frame_id and hint.header.frame_id != target_frame:
+        if guess.header.frame_id and guess.header.frame_id != target_frame:
             with self._lock:
-                if self._hint is hint:
-                    self._hint = None
-            self._bad_input(f"initial_guess dropped: it is in '{hint.header.frame_id}', the target "
+                if self._guess is guess:
+                    self._guess = None
+            self._bad_input(f"initial_guess dropped: it is in '{guess.header.frame_id}', the target "
                             f"cloud in '{target_frame}' (this node does not look up tf)")
             return None
-        return search_region(hint, settings.initial_guess_sigmas, settings.initial_guess_min_radius,
+        return region_of_guess(guess, settings.initial_guess_sigmas, settings.initial_guess_min_radius,
                              settings.initial_guess_max_radius)
 
     def _source_input(self, src: Cloud, settings):
@@ -480,7 +480,7 @@ class RegisterNode(LifecycleNode):
                                                     settings.viewpoints()[0])
         return (src.points if sequence is None else sequence), info
 
-    def _register(self, src: Cloud, tgt: Optional[Cloud], config, settings, hint) -> Tuple[bool, str]:
+    def _register(self, src: Cloud, tgt: Optional[Cloud], config, settings, guess) -> Tuple[bool, str]:
         """Register the source against the pair's target or (map mode) the prepared map; (pose
         accepted, what happened)."""
         source_viewpoint, target_viewpoint = settings.viewpoints()
@@ -491,7 +491,7 @@ class RegisterNode(LifecycleNode):
             target, target_frame = tgt.points, tgt.header.frame_id
         try:
             config, source_up = self._gravity(config, settings, src)
-            region = self._search_region(hint, target_frame, settings)
+            region = self._guess_region(guess, target_frame, settings)
             source, accumulation = self._source_input(src, settings)
             if source is src.points:
                 result = register(source, target, config, source_viewpoint=source_viewpoint,
@@ -514,8 +514,8 @@ class RegisterNode(LifecycleNode):
             self.stats["accepted_poses"] += int(result.accepted)
             self.health.last_error = self.health.last_bad_input = ""
             self.health.last_summary = result.summary()
-            if result.accepted and region is not None and self._hint is hint:
-                self._hint = None  # the robot is found: the hint has done its job
+            if result.accepted and region is not None and self._guess is guess:
+                self._guess = None  # the robot is found: the guess has done its job
             extra = {"source_stamp": src.stamp, "source_frame": src.header.frame_id,
                      "target_frame": target_frame,
                      "pose_of": settings.base_frame or src.header.frame_id,
