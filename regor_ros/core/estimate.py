@@ -197,8 +197,12 @@ def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
     covariance = (eigenvectors * (sigma2 * inverse)) @ eigenvectors.T
     if not constrained.all():
         covariance += UNCONSTRAINED_VARIANCE * (eigenvectors[:, ~constrained] @ eigenvectors[:, ~constrained].T)
-    gyration = max(np.sqrt(np.mean(np.sum(arm ** 2, axis=1))), voxel_size)
-    return covariance + resolution_covariance(JtJ, gyration, voxel_size)
+    return covariance + resolution_covariance(JtJ, _gyration(arm, voxel_size), voxel_size)
+
+
+def _gyration(arm: np.ndarray, voxel_size: float) -> float:
+    """Radius of gyration of points about the pose's position (``arm``: their offsets), never under a voxel."""
+    return max(float(np.sqrt(np.mean(np.sum(arm ** 2, axis=1)))), voxel_size)
 
 
 def resolution_uncertainty(T: np.ndarray, source: np.ndarray, voxel_size: float):
@@ -210,8 +214,7 @@ def resolution_uncertainty(T: np.ndarray, source: np.ndarray, voxel_size: float)
     sigma = voxel_size / np.sqrt(12.0)
     if len(source) == 0:
         return sigma, 0.0
-    arm = transform_points(T, source) - T[:3, 3]
-    return sigma, sigma / max(np.sqrt(np.mean(np.sum(arm ** 2, axis=1))), voxel_size)
+    return sigma, sigma / _gyration(transform_points(T, source) - T[:3, 3], voxel_size)
 
 
 def resolution_covariance(JtJ: np.ndarray, gyration: float, voxel_size: float) -> np.ndarray:

@@ -7,9 +7,9 @@ figures that do not depend on how large the target is:
 
 - **Surface agreement at the sensor's resolution.** Of the source keypoints the pose brings
   within the estimator's tolerance tau_e of the target (the overlap), the fraction within one
-  keypoint spacing (the voxel) of the target's surface. Under a right pose the overlap lies *on* the target's surfaces,
-  so nearly all of it (0.77-0.99 on the shared scan-to-map queries); under a wrong one its points
-  sit anywhere up to tau_e from them (0.19-0.62), however dense the map. Judged on the pose
+  keypoint spacing (the voxel) of the target's surface. Under a right pose the overlap lies *on*
+  the target's surfaces, so nearly all of it (0.94-1.0 on the shared scan-to-map queries); under a
+  wrong one its points sit anywhere up to tau_e from them (0.19-0.79), however dense the map. Judged on the pose
   refined at that resolution, so a right pose a degree off is not blamed for the search's step.
 - **False alarms of the feature support (a-contrario).** Neighbouring keypoints share most of
   their FPFH neighbourhood, so agreeing matches are counted once per descriptor radius (the
@@ -48,18 +48,16 @@ class Evidence:
         return dict(vars(self))
 
 
-def surface_agreement(T: np.ndarray, source_points: np.ndarray, target_points: np.ndarray,
-                      target_normals: np.ndarray, target_tree: cKDTree, tolerance: float, resolution: float):
-    """(fraction of the overlap within ``resolution`` of the target's surface, the overlap's
-    size): the overlap being the source keypoints ``T`` brings within ``tolerance`` of a target
-    keypoint, measured to that keypoint's tangent plane (a sparse scan samples a surface along
-    its lines: the nearest keypoint may be a voxel away along the surface, the surface is not)."""
-    moved = transform_points(T, source_points)
-    distances, nearest = target_tree.query(moved, distance_upper_bound=tolerance, workers=-1)
-    near = distances < tolerance
-    across = np.abs(np.einsum("ij,ij->i", moved[near] - target_points[nearest[near]], target_normals[nearest[near]]))
-    overlap = int(near.sum())
-    return (int((across < resolution).sum()) / overlap if overlap else 0.0), overlap
+def surface_agreement(T: np.ndarray, overlap_source: np.ndarray, overlap_target: np.ndarray,
+                      overlap_normals: np.ndarray, resolution: float) -> float:
+    """Fraction of the overlap (each source keypoint ``T`` brings within tau_e of a target keypoint,
+    paired with that keypoint and its normal) within ``resolution`` of the target's surface,
+    measured to the keypoint's tangent plane (a sparse scan samples a surface along its lines: the
+    nearest keypoint may be a voxel away along the surface, the surface is not)."""
+    if not len(overlap_source):
+        return 0.0
+    across = np.abs(np.einsum("ij,ij->i", transform_points(T, overlap_source) - overlap_target, overlap_normals))
+    return float((across < resolution).sum() / len(overlap_source))
 
 
 def independent(points: np.ndarray, radius: float) -> np.ndarray:
@@ -100,16 +98,16 @@ def log10_false_alarms(agreeing: int, trials: int, chance: float, tests: int) ->
     return float(np.log10(max(tests, 1)) + tail)
 
 
-def evidence(T: np.ndarray, source_points: np.ndarray, target_points: np.ndarray, target_normals: np.ndarray,
-             target_tree: cKDTree, match_source: np.ndarray, agree: np.ndarray, tolerance: float, resolution: float,
-             match_tolerance: float, descriptor_radius: float, hypotheses: int) -> Evidence:
-    """The figures of the pose ``T``: ``match_source`` are the feature matches' source keypoints,
+def evidence(T: np.ndarray, overlap: tuple, target_points: np.ndarray, target_tree: cKDTree,
+             match_source: np.ndarray, agree: np.ndarray, resolution: float, match_tolerance: float,
+             descriptor_radius: float, hypotheses: int) -> Evidence:
+    """The figures of the pose ``T``: ``overlap`` its (source keypoints, target keypoints, their
+    normals) paired within tau_e; ``match_source`` the feature matches' source keypoints,
     ``agree`` which of them the pose brings within ``match_tolerance`` of their target;
     ``hypotheses`` how many poses the search compared."""
-    agreement, overlap = surface_agreement(T, source_points, target_points, target_normals, target_tree,
-                                           tolerance, resolution)
+    agreement = surface_agreement(T, *overlap, resolution)
     matches = independent(match_source, descriptor_radius)
     agreeing = independent(match_source[agree], descriptor_radius)
     chance = chance_of_agreement(target_points, target_tree, match_tolerance)
-    return Evidence(agreement, overlap, len(matches), len(agreeing), chance,
+    return Evidence(agreement, len(overlap[0]), len(matches), len(agreeing), chance,
                     log10_false_alarms(len(agreeing), len(matches), chance, hypotheses))

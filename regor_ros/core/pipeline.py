@@ -315,10 +315,10 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     num_feature_inliers = int(initial_inlier.sum())
-    support = evidence(T, src_cloud.points, tgt_cloud.points, tgt_cloud.normals, tgt_cloud.tree, init_src,
-                       initial_inlier,
-                       config.estimation.inlier_threshold, config.features.voxel_size,
-                       config.initial.inlier_threshold, config.features.fpfh_radius, initial.hypotheses_tried)
+    overlap = (final_src, final_tgt, tgt_cloud.normals[refined.target_index])
+    support = evidence(T, overlap, tgt_cloud.points, tgt_cloud.tree, init_src, initial_inlier,
+                       config.features.voxel_size, config.initial.inlier_threshold, config.features.fpfh_radius,
+                       initial.hypotheses_tried)
     verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
                      num_feature_inliers, covariance, uncertainty, refined.target_index, support, config, prior)
     lap("verification")
@@ -353,9 +353,9 @@ def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config:
     T = refined.transform
     fine = plane_refine(T, source.points, target.points, target.normals, target.tree,
                         plane_thresholds(est.inlier_threshold, voxel), prior and prior.clamp)
-    on_surface = [len(inliers_at(pose, source.points, target.tree, voxel).source_index) for pose in (T, fine)]
-    return inliers_at(fine, source.points, target.tree, est.inlier_threshold) if on_surface[1] >= on_surface[0] \
-        else refined
+    candidate = inliers_at(fine, source.points, target.tree, est.inlier_threshold)
+    # keypoints within a voxel of the target, from the residuals found within tau_e
+    return candidate if (candidate.distances < voxel).sum() >= (refined.distances < voxel).sum() else refined
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,

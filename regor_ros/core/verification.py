@@ -27,12 +27,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .config import AcceptanceConfig, RegorConfig
-from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine
+from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, poses_close
 from .evidence import Evidence
 from .features import PreparedCloud
 from .geometry import to_matrix, transform_points
 from .gravity import GravityPrior
-from .metrics import rotation_error_deg
+from .metrics import rotation_error_deg, translation_error
 from .search_region import SearchRegion
 from .visibility import VisibilityFigures, opposite_sides, seen_and_inside
 
@@ -286,9 +286,8 @@ def reverse_failure(T: np.ndarray, returned: np.ndarray, inlier_threshold: float
     when it gives it back). Box-like rooms of different places can align with as much feature
     support as a true low-overlap pair, but the reverse search then lands elsewhere; a true pose
     comes back (measured: 59 of 59)."""
-    if rotation_error_deg(T, returned) < REVERSE_MAX_DEG and \
-            np.linalg.norm(T[:3, 3] - returned[:3, 3]) < REVERSE_MAX_TAU * inlier_threshold:
+    if poses_close(T, returned, REVERSE_MAX_DEG, REVERSE_MAX_TAU * inlier_threshold):
         return ""
     return (f"registering target to source gives another pose ({rotation_error_deg(T, returned):.0f} deg, "
-            f"{np.linalg.norm(T[:3, 3] - returned[:3, 3]):.2f} m away): a different place or an ambiguous "
+            f"{translation_error(T, returned):.2f} m away): a different place or an ambiguous "
             "scene (acceptance.reverse_check)")
