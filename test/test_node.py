@@ -27,6 +27,7 @@ def pairs_node(install, ros):
 
 def test_registers_a_real_pair_published_to_it(pairs_node, ros):
     src, tgt, T_gt, kind = moved_pair("3dmatch_redkitchen_5_6_ds", 21)
+    ros.candidates.clear()   # the session's client heard earlier tests' nodes too
     pose, status = ros.register_pair(src, tgt, TIMEOUT)
     assert status is not None, pairs_node.output()
     assert pose is not None, status
