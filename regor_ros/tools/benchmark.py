@@ -17,6 +17,7 @@ from .bench_results import LEVEL_NOTE, header
 from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, TILE_SPACING, run_maps, run_scaling
 from .pairs_benchmark import run_pairs
 from .peers import METHODS
+from .profile_benchmark import run_profile
 from .register_cli import parse_overrides
 
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
@@ -60,9 +61,16 @@ def main(argv=None) -> int:
     parser.add_argument("--batch", type=Path, metavar="DIR",
                         help="instead: regor-batch's throughput on every within-sequence pair of query "
                              "scans of the maps folder DIR, serially and on --workers local workers")
+    parser.add_argument("--profile", action="store_true",
+                        help="instead: register the pairs of the given folders (and with --maps, every map "
+                             "query) under cProfile and report the stage medians and the functions with the "
+                             "most own time")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                         help="local worker processes for --batch (default 1 2)")
     args = parser.parse_args(argv)
+    if args.profile:
+        print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
+        return 0
     if args.maps or args.map_scaling or args.batch:
         return _map_main(args, argv, parser)
     if not args.data:
