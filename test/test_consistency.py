@@ -1,14 +1,13 @@
 import numpy as np
 from conftest import random_motion
-from scipy import sparse
 
 from regor_ros.core.consistency import (
     compatibility,
     leading_eigenvector,
     length_residual,
-    second_order,
-    second_order_scores,
+    second_order_top_k,
     top_k_stable,
+    top_second_order,
 )
 from regor_ros.core.geometry import transform_points
 
@@ -30,9 +29,14 @@ def test_length_residual_is_zero_for_a_rigid_motion_and_batched():
 
 def test_second_order_scores_put_the_inlier_clique_above_outliers():
     src, tgt = clique_problem()
-    hard = (length_residual(src, tgt) < 0.1).astype(np.float32)
-    scores = second_order_scores(hard)
-    assert scores[:30].min() > scores[30:].max()
+    assert set(top_second_order(src, tgt, 0.1, 30)) == set(range(30))
+
+
+def test_top_second_order_is_the_dense_definition():
+    src, tgt = clique_problem(inliers=40, outliers=160)
+    hard = (length_residual(src, tgt) < 0.5).astype(np.float32)
+    scores = ((hard @ hard) * hard).sum(axis=1)
+    np.testing.assert_array_equal(top_second_order(src, tgt, 0.5, 120), top_k_stable(scores, 120))
 
 
 def test_spectral_confidence_ranks_inliers_first():
@@ -51,16 +55,33 @@ def test_top_k_stable_matches_a_stable_descending_sort():
                                       np.argsort(-scores, axis=1, kind="stable")[:, :6])
 
 
-def test_compatibility_by_blocks_and_its_sparse_second_order_match_the_dense_definition():
-    # 600 rows span three residual blocks; a tight threshold leaves the tight matrix sparse
+def _unpacked(bits: np.ndarray, n: int) -> np.ndarray:
+    return np.unpackbits(bits.view(np.uint8), axis=1, bitorder="little")[:, :n].astype(bool)
+
+
+def test_compatibility_and_second_order_are_the_dense_definitions():
+    # thresholds from sparse to dense; 600 rows span ten 64-bit words per packed row
     src, tgt = clique_problem(inliers=20, outliers=580)
-    r = length_residual(src, tgt, np.float32)
-    for d in (0.01, 1.0):  # sparse, then dense
+    r = length_residual(src, tgt).astype(np.float32)
+    rows = np.arange(0, 600, 7)
+    for d in (0.01, 0.3, 1.0):
         soft, hard, tight = compatibility(src, tgt, d)
         np.testing.assert_array_equal(soft, np.maximum(0.0, 1.0 - r ** 2 / d ** 2))
-        np.testing.assert_array_equal(hard, (r < d).astype(np.float32))
+        np.testing.assert_array_equal(hard, r < d)
         dense_tight = (r < d / 2).astype(np.float32)
-        assert sparse.issparse(tight) == (d == 0.01)
-        rows = np.arange(0, 600, 7)
-        np.testing.assert_array_equal(second_order(tight, hard, rows),
-                                      (dense_tight[rows] @ dense_tight) * hard[rows])
+        np.testing.assert_array_equal(_unpacked(tight, 600), r < d / 2)
+        sc2 = (dense_tight[rows] @ dense_tight) * hard[rows]
+        for k in (5, 20):  # few compatible columns: the zero-valued ones follow in index order
+            np.testing.assert_array_equal(second_order_top_k(tight, hard, rows, k), top_k_stable(sc2, k))
+
+
+def test_compatibility_with_heights_drops_pairs_whose_heights_disagree():
+    src, tgt = clique_problem(inliers=50, outliers=150)
+    offsets = np.random.default_rng(5).normal(0, 0.2, len(src))
+    distance = np.linalg.norm(src[:, None] - src[None], axis=2)
+    agree = np.abs(offsets[:, None] - offsets[None]) <= 0.3 + 0.1 * distance
+    soft, hard, tight = compatibility(src, tgt, 0.3, (offsets, 0.1))
+    plain_soft, plain_hard, _ = compatibility(src, tgt, 0.3)
+    np.testing.assert_array_equal(hard, plain_hard & agree)
+    np.testing.assert_array_equal(soft, np.where(agree, plain_soft, 0.0))
+    assert not _unpacked(tight, len(src))[~agree].any()

@@ -7,6 +7,7 @@ from .config import CHOICES, PRESETS, FeatureConfig, RegorConfig, param
 from .errors import ConfigError, RegistrationError
 from .features import MAX_ABS_COORDINATE, PreparedCloud
 from .geometry import attached_pose, parse_numbers, to_matrix, transform_points
+from .kernels import warm_up
 from .matching import match_features
 from .metrics import (
                       ERROR_SIGMAS_99,
@@ -30,4 +31,4 @@ __all__ = ["AccumulationLimits", "CHOICES", "Candidate", "ConfigError", "Corresp
            "RegistrationError", "RegistrationResult", "RegorConfig", "Rival", "ScanHistory", "ScanSequence",
            "SearchRegion", "ambiguity", "attached_pose", "correct_mask", "error_sigmas", "is_success",
            "match_features", "param", "parse_numbers", "parse_viewpoint", "prepare_cloud", "random_rigid_motion",
-           "register", "rotation_error_deg", "to_matrix", "transform_points", "translation_error"]
+           "register", "rotation_error_deg", "to_matrix", "transform_points", "translation_error", "warm_up"]

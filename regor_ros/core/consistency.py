@@ -6,11 +6,11 @@ three-point consistency) is built from that length residual.
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from typing import Optional, Tuple
 
 import numpy as np
-from scipy import sparse
-from scipy.spatial.distance import cdist
+
+from . import kernels
 
 
 def pairwise_distances(points: np.ndarray) -> np.ndarray:
@@ -20,72 +20,35 @@ def pairwise_distances(points: np.ndarray) -> np.ndarray:
     return np.sqrt(sum((x[..., :, None] - x[..., None, :]) ** 2 for x in planes))
 
 
-RESIDUAL_ROWS = 256  # rows of the length residual computed at once: stays in cache, twice as fast
-# below this fraction of set entries a sparse product is faster (measured: LiDAR's ~0.2 %, ten
-# times faster; RGB-D fragments' ~5 %, twice slower)
-SPARSE_DENSITY = 0.01
+def length_residual(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """|(|a_i - a_j|) - (|b_i - b_j|)| for every pair of correspondences, batched over leading
+    axes (the regeneration's small regions; the consensus steps' n x n loops are compiled)."""
+    return np.abs(pairwise_distances(source) - pairwise_distances(target))
 
 
-def length_residual(source: np.ndarray, target: np.ndarray, dtype=np.float64) -> np.ndarray:
-    """|(|a_i - a_j|) - (|b_i - b_j|)| for every pair of correspondences (batched over leading
-    axes), computed in float64 and stored as ``dtype``."""
-    if source.ndim > 2:
-        return np.abs(pairwise_distances(source) - pairwise_distances(target)).astype(dtype, copy=False)
-    out = np.empty((len(source), len(source)), dtype=dtype)
-    for rows, block, _ in _residual_blocks(source, target):
-        out[rows] = block
-    return out
-
-
-def _residual_blocks(source: np.ndarray, target: np.ndarray):
-    """The length residual of (n, 3) correspondences, RESIDUAL_ROWS rows at a time (float64),
-    with the source distances it came from."""
-    for start in range(0, len(source), RESIDUAL_ROWS):
-        rows = slice(start, start + RESIDUAL_ROWS)
-        distance = cdist(source[rows], source)
-        yield rows, np.abs(distance - cdist(target[rows], target)), distance
+def _points(points: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(points, dtype=np.float64)
 
 
 def compatibility(source: np.ndarray, target: np.ndarray, threshold: float,
-                  also: Optional[Callable[[slice, np.ndarray], np.ndarray]] = None):
-    """SC2-PCR's three compatibility matrices of (n, 3) correspondences, (n, n) float32: soft
-    max(0, 1 - r^2 / d^2), hard r < d and tight r < d / 2 of the length residual r (stored as
-    float32). Built block by block while each residual block is in cache, never storing r.
-    ``tight`` comes back as a sparse matrix when at most SPARSE_DENSITY of it is set. ``also``
-    ((rows, their source distances) -> (len(rows), n) bool) is a further condition two compatible correspondences must
-    meet (a gravity prior's height agreement)."""
-    n = len(source)
-    soft, hard, tight = (np.empty((n, n), dtype=np.float32) for _ in range(3))
-    nonzero = []  # tight's entries, block by block, while it stays sparse
-    for rows, block, distance in _residual_blocks(source, target):
-        r = block.astype(np.float32)
-        if also is not None:
-            r[~also(rows, distance)] = np.inf
-        np.less(r, threshold, out=hard[rows])
-        near = r < threshold / 2
-        tight[rows] = near
-        if nonzero is not None and np.count_nonzero(near) <= SPARSE_DENSITY * near.size:
-            nonzero.append(np.nonzero(near))
-        else:
-            nonzero = None
-        r **= 2
-        r /= threshold ** 2
-        np.subtract(1.0, r, out=r)
-        np.maximum(0.0, r, out=soft[rows])
-    if nonzero:
-        row = np.concatenate([i + start for start, (i, _) in zip(range(0, n, RESIDUAL_ROWS), nonzero)])
-        col = np.concatenate([j for _, j in nonzero])
-        tight = sparse.csr_matrix((np.ones(len(row), np.float32), (row, col)), shape=(n, n))
-    return soft, hard, tight
+                  heights: Optional[Tuple[np.ndarray, float]] = None):
+    """SC2-PCR's three compatibility matrices of (n, 3) correspondences: soft
+    max(0, 1 - r^2 / d^2) (n, n) float32, hard r < d (n, n) bool, and tight r < d / 2 with its
+    rows bit-packed (n, ceil(n / 64)) uint64, for second_order_top_k; r is the length residual
+    rounded to float32. ``heights`` (each correspondence's height offset along up, and the slack
+    per metre of distance), from a gravity prior, is a further condition: two compatible
+    correspondences' offsets agree within d plus the slack times their distance."""
+    offsets, slack = heights if heights is not None else (np.zeros(len(source)), 0.0)
+    return kernels.compatibility_matrices(_points(source), _points(target), float(threshold),
+                                          np.ascontiguousarray(offsets, dtype=np.float64), float(slack),
+                                          heights is not None)
 
 
-def second_order(tight, hard: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """SC2-PCR's second-order compatibility of ``rows``: (tight[rows] @ tight) * hard[rows],
-    (len(rows), n) float32 holding exact counts; ``tight`` dense or sparse (the same result)."""
-    product = tight[rows] @ tight
-    product = product.toarray() if sparse.issparse(product) else product
-    product *= hard[rows]
-    return product
+def second_order_top_k(tight: np.ndarray, hard: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+    """For each of ``rows``, the k correspondences of highest SC2-PCR second-order compatibility
+    (tight[row] . tight[j]) * hard[row, j], best first, ties in index order: (len(rows), k).
+    Counted only where hard is set (bit-packed popcounts), never as a dense product."""
+    return kernels.second_order_top_k(tight, hard, np.asarray(rows, dtype=np.int64), int(k))
 
 
 def leading_eigenvector(matrix: np.ndarray, iterations: int) -> np.ndarray:
@@ -99,12 +62,6 @@ def leading_eigenvector(matrix: np.ndarray, iterations: int) -> np.ndarray:
             return mv
         v = mv
     return v
-
-
-def second_order_scores(hard: np.ndarray) -> np.ndarray:
-    """Row sums of the second-order compatibility (H H) * H: how many pairs agree with both i and j,
-    summed over the j compatible with i. Inliers form a clique and score highest."""
-    return ((hard @ hard) * hard).sum(axis=-1)
 
 
 def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:
@@ -124,6 +81,9 @@ def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:
     return np.take_along_axis(top, order, axis=-1)
 
 
-def top_second_order(hard: np.ndarray, keep: int) -> np.ndarray:
-    """Indices of the ``keep`` rows with the highest second-order score, best first."""
-    return top_k_stable(second_order_scores(hard), keep)
+def top_second_order(source: np.ndarray, target: np.ndarray, threshold: float, keep: int) -> np.ndarray:
+    """Indices of the ``keep`` correspondences of highest second-order score, best first: the row
+    sums of (H H) * H for the hard compatibility H = r < threshold (r in float64), i.e. how many
+    pairs agree with both i and j, summed over the j compatible with i. Inliers form a clique
+    and score highest."""
+    return top_k_stable(kernels.triangle_scores(_points(source), _points(target), float(threshold)), keep)

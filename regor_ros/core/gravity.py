@@ -75,17 +75,11 @@ class GravityPrior:
         correction = _axis_angle(axis, np.where(fix, excess, 0.0))
         return correction @ rotations
 
-    def heights_agree(self, source: np.ndarray, target: np.ndarray, threshold: float):
-        """A compatibility condition for consistency.compatibility: (rows, their source distances)
-        -> does each pair's height difference along up agree within ``threshold`` plus the tilt's
-        share of their distance? (len(rows), n) bool."""
-        height_s, height_t = source @ self.source_up, target @ self.target_up
-        offset = height_s - height_t  # agreement: offset_i - offset_j stays small
-        slack = np.sin(np.radians(self.max_tilt_deg))
-
-        def agree(rows: slice, distance: np.ndarray) -> np.ndarray:
-            return np.abs(offset[rows, None] - offset[None]) <= threshold + slack * distance
-        return agree
+    def height_offsets(self, source: np.ndarray, target: np.ndarray):
+        """The compatibility condition for consistency.compatibility: (each correspondence's
+        height offset along up, the slack per metre): two correct correspondences' offsets agree
+        within the length threshold plus the tilt's share of their distance."""
+        return source @ self.source_up - target @ self.target_up, float(np.sin(np.radians(self.max_tilt_deg)))
 
     def failure(self, T: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> str:
         """Why the pose breaks the prior (empty when it does not): tilt, then sensor height."""

@@ -12,10 +12,10 @@ from typing import Callable, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 
+from . import kernels
 from .config import InitialConfig
-from .consistency import compatibility, leading_eigenvector, second_order, top_k_stable
+from .consistency import compatibility, leading_eigenvector, second_order_top_k, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
 from .features import PreparedCloud
 from .geometry import transform_points
@@ -59,16 +59,15 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig,
     With a gravity prior, compatible correspondences also agree in height."""
     n = len(src)
     d = cfg.compatibility_threshold
-    soft, hard, tight = compatibility(src, tgt, d, None if prior is None else prior.heights_agree(src, tgt, d))
+    soft, hard, tight = compatibility(src, tgt, d, None if prior is None else prior.height_offsets(src, tgt))
 
     confidence = leading_eigenvector(soft, cfg.power_iterations)
     seeds = select_seeds(confidence, src, cfg.nms_radius, max(1, int(cfg.seed_ratio * n)))
 
     k1, k2 = (cfg.k1, cfg.k2) if cfg.k1 <= n else (4, 4)
     k1, k2 = min(k1, n), min(k2, n)
-    sc2 = second_order(tight, hard, seeds)                               # (S, n)
-    first = top_k_stable(sc2, k1)                                        # C1, best first
-    hard_first = hard[first[:, :, None], first[:, None, :]]              # (S, k1, k1)
+    first = second_order_top_k(tight, hard, seeds, k1)                   # C1, best first
+    hard_first = hard[first[:, :, None], first[:, None, :]].astype(np.float32)  # (S, k1, k1)
     # second stage: agreement with the best member c* of C1, through C1
     score = np.einsum("sm,smj->sj", hard_first[:, 0, :], hard_first)
     second = np.take_along_axis(first, top_k_stable(score, k2), axis=1)
@@ -111,8 +110,8 @@ def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
     correct pose below the crowd; the candidates' fuller feature evidence does not."""
     rows = np.unique(np.linspace(0, len(source_points) - 1, SUPPORT_ROWS).astype(np.int64))
     points, planes = source_points[rows], np.ascontiguousarray(candidate_points[:, rows])
-    return np.array([(candidate_residuals(T, points, planes).min(axis=1) <= threshold ** 2).sum()
-                     for T in transforms], dtype=np.int64)
+    moved = (points @ np.swapaxes(transforms[:, :3, :3], 1, 2) + transforms[:, None, :3, 3]).astype(np.float32)
+    return kernels.landed_counts(moved, planes, np.float32(threshold ** 2))
 
 
 def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
@@ -137,8 +136,7 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
         by_residual = np.argsort(e2[rows, best], kind="stable")
         rest = rng.choice(by_residual[half:], cfg.fs_tcd_rows - half, replace=False)
         scored = np.concatenate([by_residual[:half], rest])
-    agree = np.abs(cdist(vp[scored], vp) - cdist(vq[scored], vq)) < cfg.fs_tcd_threshold
-    return int(agree.sum(axis=1).max()), vp, vq
+    return int(kernels.most_length_agreement(vp, vq, scored, cfg.fs_tcd_threshold)), vp, vq
 
 
 def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator) -> np.ndarray:

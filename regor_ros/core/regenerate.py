@@ -80,12 +80,8 @@ def global_filter(src: np.ndarray, tgt: np.ndarray, cfg: RegenerationConfig,
     if cfg.global_cap and len(src) > cfg.global_cap:
         candidates = rng.choice(len(src), cfg.global_cap, replace=False)
     u = len(candidates)
-
-    def hard(idx):
-        return (length_residual(src[idx], tgt[idx]) < cfg.global_threshold).astype(np.float32)
-
-    half = candidates[top_second_order(hard(candidates), u // 2)]
-    chosen = half[top_second_order(hard(half), int(0.2 * u))]
+    half = candidates[top_second_order(src[candidates], tgt[candidates], cfg.global_threshold, u // 2)]
+    chosen = half[top_second_order(src[half], tgt[half], cfg.global_threshold, int(0.2 * u))]
     return chosen if len(chosen) >= 10 else candidates
 
 

@@ -46,6 +46,7 @@ from ..core import (
     prepare_cloud,
     register,
     transform_points,
+    warm_up,
 )
 from ..io.map_file import load_map_file
 from .diagnostics import Health, diagnostic_array
@@ -117,7 +118,12 @@ class RegisterNode(LifecycleNode):
     # --- lifecycle ---
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Load the map file (or fail with the reason), then create the inputs, outputs and the worker."""
+        """Compile the registration kernels (or load them from numba's disk cache) so the first
+        relocalization does not pay it, load the map file (or fail with the reason), then create
+        the inputs, outputs and the worker."""
+        start = time.perf_counter()
+        warm_up()
+        self.get_logger().info(f"registration kernels ready in {time.perf_counter() - start:.2f} s")
         with self._lock:
             config, settings = self.config, self.settings
             self._reset()

@@ -1,0 +1,194 @@
+"""Compiled inner loops of the consensus steps (numba), where numpy did the arithmetic in a wider
+form than the method needs.
+
+Each kernel gives exactly what the numpy expression it replaced gave (the tests hold them to
+those expressions): the same float32 rounding of the length residual, integer counts, ties broken
+by index. Rows are independent, so the result does not depend on the number of threads.
+Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
+node pays that when it starts, not on its first relocalization.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+JIT = dict(cache=True, nogil=True)
+# OpenMP first: thread-safe (the node registers off its executor thread), and never the warning a
+# too-old TBB (some pip environments carry one) prints when tried first
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+
+@njit(inline="always")
+def _distance(points, i, j):
+    """|p_i - p_j|, summed x, y, z in that order (as scipy's cdist does)."""
+    dx = points[i, 0] - points[j, 0]
+    dy = points[i, 1] - points[j, 1]
+    dz = points[i, 2] - points[j, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+WORD = 64  # bits of one word of a packed boolean row
+_M1, _M2, _M4, _H01 = (np.uint64(0x5555555555555555), np.uint64(0x3333333333333333),
+                       np.uint64(0x0F0F0F0F0F0F0F0F), np.uint64(0x0101010101010101))
+
+
+@njit(inline="always")
+def _popcount(x):
+    """Set bits of a uint64 (the SWAR count; LLVM emits the popcnt instruction for it)."""
+    x = x - ((x >> np.uint64(1)) & _M1)
+    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
+    x = (x + (x >> np.uint64(4))) & _M4
+    return (x * _H01) >> np.uint64(56)
+
+
+@njit(inline="always")
+def _common(bits, i, j):
+    """How many columns rows i and j of a packed boolean matrix both have set."""
+    total = np.uint64(0)
+    for w in range(bits.shape[1]):
+        total += _popcount(bits[i, w] & bits[j, w])
+    return np.int64(total)
+
+
+@njit(inline="always")
+def _set_bit(bits, i, j):
+    bits[i, j // WORD] |= np.uint64(1) << np.uint64(j % WORD)
+
+
+@njit(parallel=True, **JIT)
+def compatibility_matrices(source, target, threshold, heights, slack, use_heights):
+    """SC2-PCR's soft (float32), hard (bool) and tight (bit-packed rows, uint64) compatibility of
+    (n, 3) correspondences from the length residual r = ||a_i - a_j| - |b_i - b_j|| rounded to
+    float32: soft = max(0, 1 - r^2 / d^2), hard = r < d, tight = r < d / 2. With ``use_heights``,
+    a pair whose ``heights`` differ by more than ``threshold`` + ``slack`` x its source distance
+    is incompatible in all three (the gravity prior)."""
+    n = source.shape[0]
+    soft = np.empty((n, n), dtype=np.float32)
+    hard = np.empty((n, n), dtype=np.bool_)
+    tight = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
+    d = np.float32(threshold)
+    half = np.float32(threshold / 2)
+    d2 = np.float32(threshold ** 2)
+    for i in prange(n):
+        for j in range(n):
+            distance = _distance(source, i, j)
+            r = np.float32(abs(distance - _distance(target, i, j)))
+            if use_heights and not abs(heights[i] - heights[j]) <= threshold + slack * distance:
+                r = np.float32(np.inf)
+            hard[i, j] = r < d
+            if r < half:
+                _set_bit(tight, i, j)
+            value = np.float32(1.0) - (r * r) / d2
+            soft[i, j] = value if value > 0 else np.float32(0.0)
+    return soft, hard, tight
+
+
+@njit(**JIT)
+def _top_k_of_row(values, columns, k, n):
+    """The k best columns of a row whose nonzero ``values`` sit at ``columns`` (ascending) and
+    every other column is 0: by value, ties and zeros in column order."""
+    order = np.argsort(-values, kind="mergesort")  # stable: equal values keep column order
+    out = np.empty(k, dtype=np.int64)
+    filled = 0
+    for m in order:
+        if filled == k or values[m] <= 0:
+            break
+        out[filled] = columns[m]
+        filled += 1
+    if filled < k:  # then the zero-valued columns, lowest first
+        taken = np.zeros(n, dtype=np.bool_)
+        for m in range(filled):
+            taken[out[m]] = True
+        for column in range(n):
+            if filled == k:
+                break
+            if not taken[column]:
+                out[filled] = column
+                filled += 1
+    return out
+
+
+@njit(parallel=True, **JIT)
+def second_order_top_k(tight, hard, rows, k):
+    """For each of ``rows``: the k columns j of highest second-order compatibility
+    (tight[row] . tight[j]) x hard[row, j], best first, ties in column order (``tight``
+    bit-packed). Only the columns hard-compatible with the row are counted (the others are 0)."""
+    n = hard.shape[0]
+    out = np.empty((len(rows), k), dtype=np.int64)
+    for s in prange(len(rows)):
+        row = rows[s]
+        columns = np.flatnonzero(hard[row])
+        values = np.empty(len(columns), dtype=np.int64)
+        for m in range(len(columns)):
+            values[m] = _common(tight, row, columns[m])
+        out[s] = _top_k_of_row(values, columns, k, n)
+    return out
+
+
+@njit(parallel=True, **JIT)
+def triangle_scores(source, target, threshold):
+    """Row sums of the second-order compatibility (H H) * H of the hard compatibility
+    H = (length residual < threshold, in float64): for each i, the pairs (j, l) with i, j, l
+    mutually compatible, counted over j."""
+    n = source.shape[0]
+    bits = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
+    for i in prange(n):
+        for j in range(n):
+            if abs(_distance(source, i, j) - _distance(target, i, j)) < threshold:
+                _set_bit(bits, i, j)
+    scores = np.zeros(n, dtype=np.int64)
+    for i in prange(n):
+        total = 0
+        for j in range(n):
+            if bits[i, j // WORD] >> np.uint64(j % WORD) & np.uint64(1):
+                total += _common(bits, i, j)
+        scores[i] = total
+    return scores
+
+
+@njit(parallel=True, **JIT)
+def landed_counts(moved, planes, threshold2):
+    """For each pose h: how many source keypoints (moved[h], float32) land within the squared
+    ``threshold2`` of one of their K candidates (``planes``: x, y, z, (3, N, K) float32)."""
+    poses, rows, k = moved.shape[0], planes.shape[1], planes.shape[2]
+    counts = np.zeros(poses, dtype=np.int64)
+    for h in prange(poses):
+        total = 0
+        for i in range(rows):
+            for c in range(k):
+                dx = planes[0, i, c] - moved[h, i, 0]
+                dy = planes[1, i, c] - moved[h, i, 1]
+                dz = planes[2, i, c] - moved[h, i, 2]
+                if dx * dx + dy * dy + dz * dz <= threshold2:
+                    total += 1
+                    break
+        counts[h] = total
+    return counts
+
+
+@njit(parallel=True, **JIT)
+def most_length_agreement(source, target, rows, threshold):
+    """max over ``rows`` i of #{j : ||a_i - a_j| - |b_i - b_j|| < threshold}: FS-TCD's largest
+    set of verified matches agreeing in length with one of them."""
+    n = source.shape[0]
+    counts = np.zeros(len(rows), dtype=np.int64)
+    for m in prange(len(rows)):
+        i = rows[m]
+        total = 0
+        for j in range(n):
+            if abs(_distance(source, i, j) - _distance(target, i, j)) < threshold:
+                total += 1
+        counts[m] = total
+    return counts.max() if len(rows) else 0
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) every kernel for the types the pipeline passes."""
+    points = np.random.default_rng(0).random((8, 3))
+    compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
+    _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
+    second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
+    triangle_scores(points, points, 0.1)
+    landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
+    most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)

@@ -1,0 +1,47 @@
+"""The compiled kernels give exactly the numpy expressions they replaced, on any thread count."""
+import numba
+import numpy as np
+from scipy.spatial.distance import cdist
+
+from regor_ros.core import kernels
+
+
+def _problem(seed=0, n=700):
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-3, 3, size=(n, 3))
+    tgt = src + rng.normal(0, 0.05, size=(n, 3))
+    return src, tgt
+
+
+def test_landed_counts_is_the_numpy_expression():
+    rng = np.random.default_rng(1)
+    moved = rng.uniform(-1, 1, size=(6, 200, 3)).astype(np.float32)
+    planes = rng.uniform(-1, 1, size=(3, 200, 30)).astype(np.float32)
+    threshold2 = np.float32(0.15 ** 2)
+    expected = [(sum((planes[c] - m[:, c, None]) ** 2 for c in range(3)).min(axis=1) <= threshold2).sum()
+                for m in moved]
+    np.testing.assert_array_equal(kernels.landed_counts(moved, planes, threshold2), expected)
+
+
+def test_most_length_agreement_is_the_numpy_expression():
+    src, tgt = _problem()
+    rows = np.arange(0, 700, 3)
+    expected = (np.abs(cdist(src[rows], src) - cdist(tgt[rows], tgt)) < 0.05).sum(axis=1).max()
+    assert kernels.most_length_agreement(src, tgt, rows, 0.05) == expected
+
+
+def test_results_do_not_depend_on_the_thread_count():
+    src, tgt = _problem(2)
+    rows = np.arange(0, 700, 5)
+    before = numba.get_num_threads()
+    results = []
+    try:
+        for threads in (1, before):
+            numba.set_num_threads(threads)
+            soft, hard, tight = kernels.compatibility_matrices(src, tgt, 0.1, np.zeros(len(src)), 0.0, False)
+            results.append((soft, hard, tight, kernels.second_order_top_k(tight, hard, rows, 20),
+                            kernels.triangle_scores(src, tgt, 0.1)))
+    finally:
+        numba.set_num_threads(before)
+    for one, many in zip(*results):
+        np.testing.assert_array_equal(one, many)
