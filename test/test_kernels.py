@@ -45,3 +45,18 @@ def test_results_do_not_depend_on_the_thread_count():
         numba.set_num_threads(before)
     for one, many in zip(*results):
         np.testing.assert_array_equal(one, many)
+
+
+def test_verified_candidates_is_the_numpy_expression():
+    rng = np.random.default_rng(3)
+    moved = rng.uniform(-1, 1, size=(300, 3)).astype(np.float32)
+    planes = (moved.T[:, :, None] + rng.normal(0, 0.2, size=(3, 300, 20))).astype(np.float32)
+    distance = rng.uniform(0, 1, size=(300, 20)).astype(np.float32)
+    distance[:, 5] = distance[:, 4]  # ties go to the first
+    near2, far2 = np.float32(0.1 ** 2), np.float32(0.15 ** 2)
+    e2 = sum((planes[c] - moved[:, c, None]) ** 2 for c in range(3))
+    best = np.argmin(distance + 2.0 * (e2 > far2), axis=1)
+    verified, got_best, residual = kernels.verified_candidates(moved, planes, distance, near2, far2)
+    np.testing.assert_array_equal(verified, e2.min(axis=1) <= near2)
+    np.testing.assert_array_equal(got_best, best)
+    np.testing.assert_array_equal(residual, e2[np.arange(300), best])

@@ -94,14 +94,6 @@ def inlier_counts(transforms: np.ndarray, src: np.ndarray, tgt: np.ndarray,
     return (sq < threshold ** 2).sum(axis=0)
 
 
-def candidate_residuals(T: np.ndarray, source_points: np.ndarray,
-                        candidate_points: np.ndarray) -> np.ndarray:
-    """(N, K) squared distances from each warped source keypoint to its K candidates, given as
-    x, y, z planes (3, N, K) in float32."""
-    moved = transform_points(T, source_points).astype(np.float32)
-    return sum((candidate_points[c] - moved[:, c, None]) ** 2 for c in range(3))
-
-
 def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
                       candidate_points: np.ndarray, threshold: float) -> np.ndarray:
     """For each pose, how many of SUPPORT_ROWS source keypoints land within ``threshold`` of one
@@ -121,19 +113,19 @@ def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: n
     candidate lying near its warped position, then count the largest set of these verified
     matches that agree in length with one of them. Returns (fitness, verified src, verified tgt)."""
     tau = cfg.inlier_threshold
-    e2 = candidate_residuals(T, source_points, candidate_points)
-    verified = e2.min(axis=1) <= tau ** 2
+    moved = transform_points(T, source_points).astype(np.float32)
+    verified, best, residual = kernels.verified_candidates(moved, candidate_points, candidate_distance,
+                                                           np.float32(tau ** 2), np.float32((1.5 * tau) ** 2))
     if not verified.any():
         return 0, source_points[:0], source_points[:0]
     rows = np.flatnonzero(verified)
-    cost = candidate_distance[rows] + 2.0 * (e2[rows] > (1.5 * tau) ** 2)
-    best = np.argmin(cost, axis=1)
+    best = best[rows]
     vp = source_points[rows]
     vq = candidate_points[:, rows, best].T.astype(np.float64)
     scored = np.arange(len(rows))
     if cfg.fs_tcd_rows and len(rows) > cfg.fs_tcd_rows:
         half = cfg.fs_tcd_rows // 2
-        by_residual = np.argsort(e2[rows, best], kind="stable")
+        by_residual = np.argsort(residual[rows], kind="stable")
         rest = rng.choice(by_residual[half:], cfg.fs_tcd_rows - half, replace=False)
         scored = np.concatenate([by_residual[:half], rest])
     return int(kernels.most_length_agreement(vp, vq, scored, cfg.fs_tcd_threshold)), vp, vq

@@ -168,6 +168,32 @@ def landed_counts(moved, planes, threshold2):
 
 
 @njit(parallel=True, **JIT)
+def verified_candidates(moved, planes, feature_distance, near2, far2):
+    """FS-TCD's re-matching of each source keypoint (``moved``, float32) among its K candidates
+    (``planes``: x, y, z (3, N, K) float32): (verified: one candidate within the squared
+    ``near2``; the candidate of least cost, its feature distance plus 2 when farther than the
+    squared ``far2``, the first on ties; that candidate's squared distance)."""
+    rows, k = planes.shape[1], planes.shape[2]
+    verified = np.zeros(rows, dtype=np.bool_)
+    best = np.zeros(rows, dtype=np.int64)
+    residual = np.zeros(rows, dtype=np.float32)
+    for i in prange(rows):
+        nearest = np.float32(np.inf)
+        lowest = np.inf
+        for c in range(k):
+            dx = planes[0, i, c] - moved[i, 0]
+            dy = planes[1, i, c] - moved[i, 1]
+            dz = planes[2, i, c] - moved[i, 2]
+            e2 = dx * dx + dy * dy + dz * dz
+            nearest = min(nearest, e2)
+            cost = np.float64(feature_distance[i, c]) + (2.0 if e2 > far2 else 0.0)
+            if cost < lowest:
+                lowest, best[i], residual[i] = cost, c, e2
+        verified[i] = nearest <= near2
+    return verified, best, residual
+
+
+@njit(parallel=True, **JIT)
 def most_length_agreement(source, target, rows, threshold):
     """max over ``rows`` i of #{j : ||a_i - a_j| - |b_i - b_j|| < threshold}: FS-TCD's largest
     set of verified matches agreeing in length with one of them."""
@@ -191,4 +217,6 @@ def warm_up() -> None:
     second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
     triangle_scores(points, points, 0.1)
     landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
+    verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
+                        np.float32(0.01), np.float32(0.02))
     most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
