@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import List, Optional
 
-from ..core import ConfigError, RegorConfig
+from ..core import ConfigError, RegorConfig, warm_up
 from .batch_benchmark import run_batch_scaling
 from .bench_results import LEVEL_NOTE, header
 from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, TILE_SPACING, run_maps, run_scaling
@@ -68,6 +68,7 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                         help="local worker processes for --batch (default 1 2)")
     args = parser.parse_args(argv)
+    warm_up()  # numba's compile or cache load, before any clock starts (as the node does at configure)
     if args.profile:
         print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
         return 0

@@ -38,6 +38,7 @@ from ..core import (
     rotation_error_deg,
     to_matrix,
     translation_error,
+    warm_up,
 )
 from ..io.map_file import load_map_file, read_trajectory, write_trajectory
 from .bench_results import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
@@ -131,6 +132,7 @@ def _run_map(job) -> List[dict]:
     with the other places' maps instead (``enlarged``), its own queries also go in thinned, and
     there is no cross-map set (the other places are inside the map)."""
     folder, others, method, config, stress = job
+    warm_up()  # this child's compile or cache load, before any clock starts
     cloud, trajectory, queries = load_sequence(Path(folder))
     if stress:
         cloud, trajectory = enlarged(cloud, trajectory, others)
@@ -319,6 +321,7 @@ def _run_scaling(job) -> dict:
     """Prepare the tiled map from a file, cold (prepared and cached) then warm (the cache loaded:
     a robot's restart), and register the queries against the warm one (in a child process)."""
     import tempfile
+    warm_up()
     folder, tiles, config = job
     cloud, trajectory, queries = load_sequence(Path(folder))
     big, poses = tiled(cloud, tiles)
