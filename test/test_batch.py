@@ -123,7 +123,7 @@ def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tm
     import logging
 
     from distributed import Client, LocalCluster
-    with plain_worker_environment():  # an existing cluster, set up as regor-batch's own
+    with plain_worker_environment(2):  # an existing cluster, set up as regor-batch's own
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
     client = Client(cluster)

@@ -196,22 +196,26 @@ def open_client(workers: int, scheduler: Optional[str]):
     from distributed import Client
     if scheduler:
         return Client(scheduler, timeout=30)
-    with plain_worker_environment():  # a cluster the client makes is closed with it
+    with plain_worker_environment(workers):  # a cluster the client makes is closed with it
         return Client(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
 
 
-def plain_worker_environment():
-    """Dask config under which a local cluster's workers start with this process's environment
-    (it is read when each worker's nanny is made, which restarts its worker so too). Dask sets
-    two things before it starts a worker, and both change a registration:
-    MALLOC_TRIM_THRESHOLD_=65536 turns off glibc's adaptive mmap threshold, so every large numpy
-    array is mapped and unmapped afresh: registrations took 54 % longer (24 MulRan pairs, 21.5 s
-    instead of 13.9 s). OMP_NUM_THREADS=1 changes the bits: FAISS's exact search sums in an
-    order that depends on the thread count, so a near tie between two features can go either way
-    (16 of 14.5 k matches of one MulRan pair; 2 of 90 poses then differed by 2-4 mm)."""
+def plain_worker_environment(workers: int):
+    """Dask config under which a local cluster's ``workers`` start with this process's environment
+    (it is read when each worker's nanny is made, which restarts its worker so too), sharing the
+    cores among them. Dask sets two things before it starts a worker, and both change a
+    registration: MALLOC_TRIM_THRESHOLD_=65536 turns off glibc's adaptive mmap threshold, so every
+    large numpy array is mapped and unmapped afresh: registrations took 54 % longer (24 MulRan
+    pairs, 21.5 s instead of 13.9 s). OMP_NUM_THREADS=1 changes the bits: FAISS's exact search
+    sums in an order that depends on the thread count, so a near tie between two features can go
+    either way (16 of 14.5 k matches of one MulRan pair; 2 of 90 poses then differed by 2-4 mm).
+    The compiled kernels' threads are shared out instead (NUMBA_NUM_THREADS, unless set): their
+    results do not depend on the count, and two workers each spinning up every core ran at half
+    the pairs per second (0.84 against 1.63 on 2 cores, 90 MulRan and Avia pairs)."""
     import dask
-    return dask.config.set({"distributed.nanny.pre-spawn-environ": {}})
+    threads = os.environ.get("NUMBA_NUM_THREADS") or str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
+    return dask.config.set({"distributed.nanny.pre-spawn-environ": {"NUMBA_NUM_THREADS": threads}})
 
 
 def main(argv=None) -> int:
