@@ -42,4 +42,7 @@ ls -d "$PWD/$INSTALL"/regor_ros/lib/python3*/site-packages > "$site/regor_ros_in
 for tool in regor-register regor-batch regor-bench regor-calibrate-gate regor-pair-client regor-relocalize; do
   ln -sf "$PWD/$INSTALL/regor_ros/lib/regor_ros/$tool" "$VENV/bin/$tool"
 done
+echo "== compiling the registration kernels (numba's disk cache: the node's first start only loads them)"
+"$VENV/bin/python" -c "from regor_ros.core import warm_up; warm_up()"             # the source tree (tests)
+(cd / && "$VENV/bin/python" -c "from regor_ros.core import warm_up; warm_up()")   # the installed package
 echo "== ready: source $VENV/bin/activate && source $INSTALL/setup.bash"
