@@ -144,6 +144,17 @@ def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random
     return np.sort(order[:cfg.max_correspondences])
 
 
+def _duplicate(T: np.ndarray, kept: list, tolerance: float) -> bool:
+    """Whether ``T`` is within DEDUPE_ANGLE_DEG and ``tolerance`` of a kept pose. The positions,
+    compared with all kept poses at once, pick the few worth the exact test (with a margin far
+    above rounding, so the answer is the exact test's)."""
+    if not kept:
+        return False
+    offsets = np.linalg.norm(np.array([K[:3, 3] for K in kept]) - T[:3, 3], axis=1)
+    return any(poses_close(T, kept[i], DEDUPE_ANGLE_DEG, tolerance)
+               for i in np.flatnonzero(offsets < tolerance * (1 + 1e-9)))
+
+
 def _fittest(poses: list, fitnesses: list, plausible) -> np.ndarray:
     """The pose of highest fitness (the first on ties), among the plausible ones when any is."""
     order = np.argsort(-np.asarray(fitnesses), kind="stable")
@@ -174,8 +185,11 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
         keeps = prior.allows(hypotheses, source, target)
         if keeps.any():
             hypotheses = hypotheses[keeps]
-    counts = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
-    T_ic = hypotheses[int(np.argmax(counts))]
+
+    def most_inliers() -> np.ndarray:
+        """T_ic, the hypothesis with the most inliers in the consensus subset: the fallback when
+        FS-TCD compared none or T_m has no inliers (computed only then)."""
+        return hypotheses[int(np.argmax(inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)))]
 
     # FS-TCD works on the candidates' x, y, z planes, relative to their centroid (float32; not
     # the target's: a map's would cost a pass over the map on every call)
@@ -185,7 +199,8 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     shift = np.eye(4)
     shift[:3, 3] = -origin
     candidate_sources = source.points[matches.candidate_rows]
-    scores = counts if cfg.ranking == "inliers" else candidate_support(
+    scores = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold) if cfg.ranking == "inliers" \
+        else candidate_support(
         shift @ hypotheses, candidate_sources, candidate_points, cfg.inlier_threshold)
     ranked = top_k_stable(scores, cfg.num_hypotheses)
     kept: list = []
@@ -194,7 +209,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
     for h in ranked:
         T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp)
-        if cfg.dedupe_hypotheses and any(poses_close(T, K, DEDUPE_ANGLE_DEG, tolerance) for K in kept):
+        if cfg.dedupe_hypotheses and _duplicate(T, kept, tolerance):
             continue
         kept.append(T)
         fitness, verified_src, verified_tgt = fs_tcd_fitness(
@@ -204,12 +219,12 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
         if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:
             refine_src, refine_tgt = verified_src, verified_tgt
         fitnesses.append(fitness)
-    T_fs = _fittest(kept, fitnesses, plausible) if kept else T_ic
+    T_fs = _fittest(kept, fitnesses, plausible) if kept else most_inliers()
 
     T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20, clamp)
     inliers = agreeing(T_m, src, tgt, cfg.inlier_threshold)
     if not inliers.any():
-        inliers = agreeing(T_ic, src, tgt, cfg.inlier_threshold)
+        inliers = agreeing(most_inliers(), src, tgt, cfg.inlier_threshold)
     return InitialResult(T_m, inliers, len(kept), len(hypotheses),
                          distinct_candidates(kept, fitnesses, cfg.inlier_threshold))
 
