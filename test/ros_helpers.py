@@ -37,11 +37,18 @@ class NodeProcess:
         return time.monotonic() - start
 
 
-def call(client, srv_type, name, request):
+def call(client, srv_type, name, request, resend_every=None):
+    """The service's response, waiting up to TIMEOUT. ``resend_every`` (seconds; for a request
+    that can be repeated, a query): send it again while unanswered. A service can be discovered
+    before its reply path is matched, and on a loaded machine the first reply is then lost."""
     cli = client.create_client(srv_type, f"/register_node/{name}")
     assert cli.wait_for_service(timeout_sec=TIMEOUT)
+    deadline = time.monotonic() + TIMEOUT
     future = cli.call_async(request)
-    client.spin_until(future.done, TIMEOUT)
+    while not client.spin_until(future.done, min(resend_every or TIMEOUT, max(deadline - time.monotonic(), 0))):
+        if resend_every is None or time.monotonic() >= deadline:
+            break
+        future = cli.call_async(request)
     client.destroy_client(cli)
     return future.result()
 

@@ -28,7 +28,7 @@ def _transition(ros, transition_id) -> bool:
 
 
 def _state(ros) -> int:
-    return call(ros, GetState, "get_state", GetState.Request()).current_state.id
+    return call(ros, GetState, "get_state", GetState.Request(), resend_every=10.0).current_state.id
 
 
 def _relocalize(ros, scan):
