@@ -60,3 +60,33 @@ def test_verified_candidates_is_the_numpy_expression():
     np.testing.assert_array_equal(verified, e2.min(axis=1) <= near2)
     np.testing.assert_array_equal(got_best, best)
     np.testing.assert_array_equal(residual, e2[np.arange(300), best])
+
+
+def _numpy_bins(offsets, step, cols):
+    ranges = np.linalg.norm(offsets, axis=1)
+    keep = ranges > 1e-3
+    offsets, ranges = offsets[keep], ranges[keep]
+    azimuth = np.arctan2(offsets[:, 1], offsets[:, 0]) + np.pi
+    elevation = np.arcsin(np.clip(offsets[:, 2] / ranges, -1.0, 1.0)) + np.pi / 2
+    return ranges, np.floor(elevation / step).astype(np.int64) * cols + np.floor(azimuth / step).astype(np.int64) % cols
+
+
+def test_spherical_bins_and_free_space_classes_are_the_numpy_expressions():
+    rng = np.random.default_rng(6)
+    points = rng.normal(0, 20, size=(20_000, 3))
+    points[:5] = 0.0  # at the viewpoint: no direction, dropped / never seen
+    step, cols = np.radians(1.0), 360
+    ranges, index = kernels.spherical_bins(points, step, cols, 1e-3)
+    expected_ranges, expected_index = _numpy_bins(points, step, cols)
+    np.testing.assert_array_equal(ranges, expected_ranges)
+    np.testing.assert_array_equal(index, expected_index)
+
+    depth = rng.uniform(0, 40, size=(181, 360)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = 0.0  # unknown bins
+    slack = rng.uniform(0, 0.5, len(points))
+    seen, inside = kernels.free_space_classes(points, np.zeros(3), depth, step, 1e-3, 0.15, 0.02, slack)
+    usable = np.linalg.norm(points, axis=1) > 1e-3
+    d = depth.ravel()[expected_index]
+    np.testing.assert_array_equal(seen[usable], d > 0)
+    np.testing.assert_array_equal(inside[usable], (d > 0) & (expected_ranges < d - 0.15 - 0.02 * d - slack[usable]))
+    assert not seen[~usable].any() and not inside[~usable].any()

@@ -209,6 +209,51 @@ def most_length_agreement(source, target, rows, threshold):
     return counts.max() if len(rows) else 0
 
 
+@njit(inline="always")
+def _bin(x, y, z, r, step, cols):
+    """Flat (elevation, azimuth) bin of a direction (x, y, z) at range r."""
+    elevation = np.arcsin(min(max(z / r, -1.0), 1.0)) + np.pi / 2
+    azimuth = np.arctan2(y, x) + np.pi
+    return np.int64(np.floor(elevation / step)) * cols + np.int64(np.floor(azimuth / step)) % cols
+
+
+@njit(parallel=True, **JIT)
+def spherical_bins(offsets, step, cols, min_range):
+    """Range and flat (elevation, azimuth) bin of each point given relative to a viewpoint, for
+    the points farther than ``min_range`` (in order): what a range image is built from."""
+    n = offsets.shape[0]
+    ranges = np.empty(n)
+    index = np.empty(n, dtype=np.int64)
+    for i in prange(n):
+        x, y, z = offsets[i, 0], offsets[i, 1], offsets[i, 2]
+        ranges[i] = np.sqrt(x * x + y * y + z * z)
+        if ranges[i] > min_range:
+            index[i] = _bin(x, y, z, ranges[i], step, cols)
+    keep = ranges > min_range
+    return ranges[keep], index[keep]
+
+
+@njit(parallel=True, **JIT)
+def free_space_classes(points, viewpoint, free_depth, step, min_range, margin, margin_ratio, slack):
+    """Per point: (lands on a bin of the range image ``free_depth`` (float32, 0 = unknown) seen
+    from ``viewpoint``, lies nearer than that bin's free depth less ``margin``, ``margin_ratio``
+    of the depth (both in float32, as the depth) and its ``slack``)."""
+    n, cols = points.shape[0], free_depth.shape[1]
+    flat = free_depth.ravel()
+    seen = np.zeros(n, dtype=np.bool_)
+    inside = np.zeros(n, dtype=np.bool_)
+    near, ratio = np.float32(margin), np.float32(margin_ratio)
+    for i in prange(n):
+        x, y, z = points[i, 0] - viewpoint[0], points[i, 1] - viewpoint[1], points[i, 2] - viewpoint[2]
+        r = np.sqrt(x * x + y * y + z * z)
+        if r > min_range:
+            depth = flat[_bin(x, y, z, r, step, cols)]
+            if depth > 0:
+                seen[i] = True
+                inside[i] = r < np.float64(depth - near - ratio * depth) - slack[i]
+    return seen, inside
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel for the types the pipeline passes."""
     points = np.random.default_rng(0).random((8, 3))
@@ -220,3 +265,5 @@ def warm_up() -> None:
     verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
                         np.float32(0.01), np.float32(0.02))
     most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
+    spherical_bins(points, 0.01, 8, 1e-3)
+    free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))

@@ -28,6 +28,7 @@ from typing import Optional
 import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
+from . import kernels
 from .geometry import parse_numbers
 
 MIN_RANGE = 1e-3  # points this close to the viewpoint have no direction [m]
@@ -97,16 +98,12 @@ class RangeImage:
     def classify(self, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
         """Per point: (lands on a seen bin, lies inside seen free space); ``slack`` (a number or
         one per point) widens the margin by how far the pose may have misplaced each point."""
-        offsets = points - self.viewpoint
-        ranges = np.linalg.norm(offsets, axis=1)
-        usable = ranges > MIN_RANGE
-        slack = np.broadcast_to(np.asarray(slack, dtype=np.float64), (len(points),))[usable]
-        seen, inside = np.zeros(len(points), dtype=bool), np.zeros(len(points), dtype=bool)
-        ranges, index = _bins(offsets[usable], self.resolution_deg, self.free_depth.shape[1])
-        depth = self.free_depth.ravel()[index]
-        seen[usable] = depth > 0
-        inside[usable] = (depth > 0) & (ranges < depth - margin - margin_ratio * depth - slack)
-        return seen, inside
+        slack = np.ascontiguousarray(np.broadcast_to(np.asarray(slack, dtype=np.float64), (len(points),)))
+        return kernels.free_space_classes(np.ascontiguousarray(points, dtype=np.float64),
+                                          np.asarray(self.viewpoint, dtype=np.float64),
+                                          np.ascontiguousarray(self.free_depth, dtype=np.float32),
+                                          float(np.radians(self.resolution_deg)), MIN_RANGE,
+                                          float(margin), float(margin_ratio), slack)
 
 
 def seen_and_inside(images, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
@@ -127,15 +124,8 @@ def _shape(resolution_deg: float):
 
 def _bins(offsets: np.ndarray, resolution_deg: float, cols: int):
     """Ranges and flat bin indices of points given relative to the viewpoint (too-close ones dropped)."""
-    ranges = np.linalg.norm(offsets, axis=1)
-    keep = ranges > MIN_RANGE
-    offsets, ranges = offsets[keep], ranges[keep]
-    step = np.radians(resolution_deg)
-    azimuth = np.arctan2(offsets[:, 1], offsets[:, 0]) + np.pi
-    elevation = np.arcsin(np.clip(offsets[:, 2] / ranges, -1.0, 1.0)) + np.pi / 2
-    col = np.floor(azimuth / step).astype(np.int64) % cols
-    row = np.floor(elevation / step).astype(np.int64)
-    return ranges, row * cols + col
+    return kernels.spherical_bins(np.ascontiguousarray(offsets, dtype=np.float64),
+                                  float(np.radians(resolution_deg)), int(cols), MIN_RANGE)
 
 
 @dataclass
