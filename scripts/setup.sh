@@ -43,6 +43,7 @@ for tool in regor-register regor-batch regor-bench regor-calibrate-gate regor-pa
   ln -sf "$PWD/$INSTALL/regor_ros/lib/regor_ros/$tool" "$VENV/bin/$tool"
 done
 echo "== compiling the registration kernels (numba's disk cache: the node's first start only loads them)"
-"$VENV/bin/python" -c "from regor_ros.core import warm_up; warm_up()"             # the source tree (tests)
-(cd / && "$VENV/bin/python" -c "from regor_ros.core import warm_up; warm_up()")   # the installed package
+python_bin="$PWD/$VENV/bin/python"
+"$python_bin" -c "from regor_ros.core import warm_up; warm_up()"             # the source tree (tests)
+(cd / && "$python_bin" -c "from regor_ros.core import warm_up; warm_up()")   # the installed package
 echo "== ready: source $VENV/bin/activate && source $INSTALL/setup.bash"
