@@ -93,7 +93,9 @@ def test_configure_activate_relocalize_then_load_map_swaps_the_map(install, ros,
                  "-p", "registration:=on_demand", "-p", "relocalize_timeout:=60.0")
     try:
         _wait_for_services(ros, node)
-        assert _transition(ros, Transition.TRANSITION_CONFIGURE), node.output()
+        assert "registration kernels ready" not in node.output()  # compiled or loaded in configure,
+        assert _transition(ros, Transition.TRANSITION_CONFIGURE), node.output()  # not on a relocalization
+        assert "registration kernels ready" in node.output()
         assert _state(ros) == State.PRIMARY_STATE_INACTIVE
         inactive = call(ros, Trigger, "relocalize", Trigger.Request())
         assert not inactive.success and "inactive" in inactive.message
