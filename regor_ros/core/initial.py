@@ -199,9 +199,10 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     shift = np.eye(4)
     shift[:3, 3] = -origin
     candidate_sources = source.points[matches.candidate_rows]
-    scores = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold) if cfg.ranking == "inliers" \
-        else candidate_support(
-        shift @ hypotheses, candidate_sources, candidate_points, cfg.inlier_threshold)
+    if cfg.ranking == "inliers":
+        scores = inlier_counts(hypotheses, sub_src, sub_tgt, cfg.inlier_threshold)
+    else:
+        scores = candidate_support(shift @ hypotheses, candidate_sources, candidate_points, cfg.inlier_threshold)
     ranked = top_k_stable(scores, cfg.num_hypotheses)
     kept: list = []
     fitnesses: list = []

@@ -28,6 +28,22 @@ def _distance(points, i, j):
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
+@njit(inline="always")
+def _residual(source, target, i, j):
+    """The length residual of correspondences i and j: ||a_i - a_j| - |b_i - b_j||."""
+    return abs(_distance(source, i, j) - _distance(target, i, j))
+
+
+@njit(inline="always")
+def _to_candidate2(planes, i, c, point):
+    """Squared distance from ``point`` (x, y, z) to keypoint i's candidate c (``planes``: x, y, z
+    (3, N, K)), summed x, y, z in that order."""
+    dx = planes[0, i, c] - point[0]
+    dy = planes[1, i, c] - point[1]
+    dz = planes[2, i, c] - point[2]
+    return dx * dx + dy * dy + dz * dz
+
+
 WORD = 64  # bits of one word of a packed boolean row
 _M1, _M2, _M4, _H01 = (np.uint64(0x5555555555555555), np.uint64(0x3333333333333333),
                        np.uint64(0x0F0F0F0F0F0F0F0F), np.uint64(0x0101010101010101))
@@ -135,7 +151,7 @@ def triangle_scores(source, target, threshold):
     bits = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
     for i in prange(n):
         for j in range(n):
-            if abs(_distance(source, i, j) - _distance(target, i, j)) < threshold:
+            if _residual(source, target, i, j) < threshold:
                 _set_bit(bits, i, j)
     scores = np.zeros(n, dtype=np.int64)
     for i in prange(n):
@@ -157,10 +173,7 @@ def landed_counts(moved, planes, threshold2):
         total = 0
         for i in range(rows):
             for c in range(k):
-                dx = planes[0, i, c] - moved[h, i, 0]
-                dy = planes[1, i, c] - moved[h, i, 1]
-                dz = planes[2, i, c] - moved[h, i, 2]
-                if dx * dx + dy * dy + dz * dz <= threshold2:
+                if _to_candidate2(planes, i, c, moved[h, i]) <= threshold2:
                     total += 1
                     break
         counts[h] = total
@@ -181,10 +194,7 @@ def verified_candidates(moved, planes, feature_distance, near2, far2):
         nearest = np.float32(np.inf)
         lowest = np.inf
         for c in range(k):
-            dx = planes[0, i, c] - moved[i, 0]
-            dy = planes[1, i, c] - moved[i, 1]
-            dz = planes[2, i, c] - moved[i, 2]
-            e2 = dx * dx + dy * dy + dz * dz
+            e2 = _to_candidate2(planes, i, c, moved[i])
             nearest = min(nearest, e2)
             cost = np.float64(feature_distance[i, c]) + (2.0 if e2 > far2 else 0.0)
             if cost < lowest:
@@ -203,7 +213,7 @@ def most_length_agreement(source, target, rows, threshold):
         i = rows[m]
         total = 0
         for j in range(n):
-            if abs(_distance(source, i, j) - _distance(target, i, j)) < threshold:
+            if _residual(source, target, i, j) < threshold:
                 total += 1
         counts[m] = total
     return counts.max() if len(rows) else 0

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core import RegorConfig, is_success, prepare_cloud, register
 from .bench_results import STAGES, header
-from .map_benchmark import load_sequence
+from .map_benchmark import INPUTS, load_sequence
 from .pairs_benchmark import load_pairs
 
 PROFILE_SEED = 1
@@ -83,10 +83,10 @@ def profile_pairs(folders: List[Path], name_filter: Optional[str]) -> List[Profi
     return list(groups.values())
 
 
-def profile_maps(folder: Path, name_filter: Optional[str]) -> tuple:
+def profile_maps(folder: Path) -> tuple:
     """(groups of map queries by input, [(sequence, map points, preparation seconds)])."""
     config = RegorConfig.preset("outdoor")
-    groups = {which: Profiled(f"map queries, {which}") for which in ("single", "sequence")}
+    groups = {which: Profiled(f"map queries, {which}") for which in INPUTS}
     maps = []
     for sequence in sorted(p for p in folder.iterdir() if (p / "queries.json").is_file()):
         cloud, trajectory, queries = load_sequence(sequence)
@@ -94,8 +94,6 @@ def profile_maps(folder: Path, name_filter: Optional[str]) -> tuple:
         prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
         maps.append((sequence.name, len(cloud), time.perf_counter() - start))
         for query in queries:
-            if name_filter and not any(part in query.id for part in name_filter.split(",")):
-                continue
             for which, group in groups.items():
                 source = query.cloud(which)
                 if source is not None:
@@ -107,7 +105,7 @@ def run_profile(folders: List[Path], maps: Optional[Path], name_filter: Optional
     groups = profile_pairs(folders, name_filter)
     prepared_maps = []
     if maps is not None:
-        map_groups, prepared_maps = profile_maps(maps, None)
+        map_groups, prepared_maps = profile_maps(maps)
         groups += map_groups
     lines = [header("regor_ros profile", argv).rstrip(),
              "", f"Pairs moved by seed {PROFILE_SEED}'s motion and registered from raw clouds (features "
