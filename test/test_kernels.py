@@ -1,9 +1,10 @@
 """The compiled kernels give exactly the numpy expressions they replaced, on any thread count."""
 import numba
 import numpy as np
+from conftest import load_map_query
 from scipy.spatial.distance import cdist
 
-from regor_ros.core import kernels
+from regor_ros.core import RegorConfig, kernels, prepare_cloud, register, warm_up
 
 
 def _problem(seed=0, n=700):
@@ -90,3 +91,22 @@ def test_spherical_bins_and_free_space_classes_are_the_numpy_expressions():
     np.testing.assert_array_equal(seen[usable], d > 0)
     np.testing.assert_array_equal(inside[usable], (d > 0) & (expected_ranges < d - 0.15 - 0.02 * d - slack[usable]))
     assert not seen[~usable].any() and not inside[~usable].any()
+
+
+def _compiled() -> dict:
+    return {name: len(kernel.signatures) for name, kernel in vars(kernels).items()
+            if isinstance(kernel, numba.core.registry.CPUDispatcher)}
+
+
+def test_registrations_after_warm_up_compile_nothing(kitchen_pair):
+    """warm_up compiles every type a registration passes, so none compiles on the first one:
+    scan to scan (free space from both sensors), and a scan against a map (the map's views) under
+    a gravity prior (the height condition)."""
+    warm_up()
+    compiled = _compiled()
+    src, tgt, _, _ = kitchen_pair
+    register(src, tgt, RegorConfig.preset("indoor"))
+    scan, cloud, _ = load_map_query("scaloam_mulran_kaist03", "scan_000005")
+    config = RegorConfig.preset("outdoor").replace({"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"})
+    register(scan, prepare_cloud(cloud, config, "map"), config)
+    assert _compiled() == compiled

@@ -98,7 +98,10 @@ class RangeImage:
     def classify(self, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
         """Per point: (lands on a seen bin, lies inside seen free space); ``slack`` (a number or
         one per point) widens the margin by how far the pose may have misplaced each point."""
-        slack = np.ascontiguousarray(np.broadcast_to(np.asarray(slack, dtype=np.float64), (len(points),)))
+        # a writable array of its own: a read-only one (a broadcast view) is another type to the
+        # compiled kernel, compiled afresh on the first registration
+        slack = np.full(len(points), slack, dtype=np.float64) if np.ndim(slack) == 0 \
+            else np.ascontiguousarray(slack, dtype=np.float64)
         return kernels.free_space_classes(np.ascontiguousarray(points, dtype=np.float64),
                                           np.asarray(self.viewpoint, dtype=np.float64),
                                           np.ascontiguousarray(self.free_depth, dtype=np.float32),
