@@ -123,9 +123,13 @@ def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tm
     import logging
 
     from distributed import Client, LocalCluster
-    with plain_worker_environment(2):  # an existing cluster, set up as regor-batch's own
+    numba_threads = os.environ.get("NUMBA_NUM_THREADS")
+    with plain_worker_environment():  # an existing cluster, set up as regor-batch's own
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+    # the nanny writes its workers' variables into this process: a changed NUMBA_NUM_THREADS makes
+    # numba refuse every later compile here
+    assert os.environ.get("NUMBA_NUM_THREADS") == numba_threads
     client = Client(cluster)
     out = tmp_path / "out.jsonl"
     try:

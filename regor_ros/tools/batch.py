@@ -143,8 +143,9 @@ def _failed_row(row: PairRow, exc: BaseException) -> Dict:
 
 
 def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, object], client,
-              cache_capacity: int, progress: Progress) -> Dict[str, int]:
-    """Register the rows not yet in ``results`` on the client's workers; returns counts."""
+              cache_capacity: int, progress: Progress, threads: Optional[int] = None) -> Dict[str, int]:
+    """Register the rows not yet in ``results`` on the client's workers, each task with
+    ``threads`` compiled-kernel threads (None: the worker's own); returns counts."""
     from distributed import as_completed
     counts = dict.fromkeys(COUNTED, 0)
     finished = as_completed()
@@ -157,7 +158,7 @@ def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, obj
         for address, info in workers.items():
             while dispatcher and load[address] < IN_FLIGHT_PER_THREAD * info.get("nthreads", 1):
                 row = dispatcher.next_for(address)
-                future = client.submit(register_row, row, overrides, cache_capacity, pure=False,
+                future = client.submit(register_row, row, overrides, cache_capacity, threads, pure=False,
                                        workers=[address], allow_other_workers=True)
                 running[future] = (row, address)
                 load[address] += 1
@@ -196,26 +197,31 @@ def open_client(workers: int, scheduler: Optional[str]):
     from distributed import Client
     if scheduler:
         return Client(scheduler, timeout=30)
-    with plain_worker_environment(workers):  # a cluster the client makes is closed with it
+    with plain_worker_environment():  # a cluster the client makes is closed with it
         return Client(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
 
 
-def plain_worker_environment(workers: int):
-    """Dask config under which a local cluster's ``workers`` start with this process's environment
-    (it is read when each worker's nanny is made, which restarts its worker so too), sharing the
-    cores among them. Dask sets two things before it starts a worker, and both change a
-    registration: MALLOC_TRIM_THRESHOLD_=65536 turns off glibc's adaptive mmap threshold, so every
-    large numpy array is mapped and unmapped afresh: registrations took 54 % longer (24 MulRan
-    pairs, 21.5 s instead of 13.9 s). OMP_NUM_THREADS=1 changes the bits: FAISS's exact search
-    sums in an order that depends on the thread count, so a near tie between two features can go
-    either way (16 of 14.5 k matches of one MulRan pair; 2 of 90 poses then differed by 2-4 mm).
-    The compiled kernels' threads are shared out instead (NUMBA_NUM_THREADS, unless set): their
+def plain_worker_environment():
+    """Dask config under which a local cluster's workers start with this process's environment
+    (it is read when each worker's nanny is made, which restarts its worker so too). Dask sets
+    two things before it starts a worker, and both change a registration:
+    MALLOC_TRIM_THRESHOLD_=65536 turns off glibc's adaptive mmap threshold, so every large numpy
+    array is mapped and unmapped afresh: registrations took 54 % longer (24 MulRan pairs, 21.5 s
+    instead of 13.9 s). OMP_NUM_THREADS=1 changes the bits: FAISS's exact search sums in an
+    order that depends on the thread count, so a near tie between two features can go either way
+    (16 of 14.5 k matches of one MulRan pair; 2 of 90 poses then differed by 2-4 mm). (The nanny
+    also writes these variables into this process's own environment, so nothing else goes here:
+    the kernels' thread share is set per task, ``kernel_threads``.)"""
+    import dask
+    return dask.config.set({"distributed.nanny.pre-spawn-environ": {}})
+
+
+def kernel_threads(workers: int) -> int:
+    """Compiled-kernel threads for each of ``workers`` local workers: the cores shared out. Their
     results do not depend on the count, and two workers each spinning up every core ran at half
     the pairs per second (0.84 against 1.63 on 2 cores, 90 MulRan and Avia pairs)."""
-    import dask
-    threads = os.environ.get("NUMBA_NUM_THREADS") or str(max(1, (os.cpu_count() or 1) // max(workers, 1)))
-    return dask.config.set({"distributed.nanny.pre-spawn-environ": {"NUMBA_NUM_THREADS": threads}})
+    return max(1, (os.cpu_count() or 1) // max(workers, 1))
 
 
 def main(argv=None) -> int:
@@ -258,7 +264,8 @@ def main(argv=None) -> int:
     try:
         if skipped < len(rows):
             client = open_client(args.workers, args.scheduler)
-            counts = run_batch(rows, results, overrides, client, args.cache_clouds, progress)
+            counts = run_batch(rows, results, overrides, client, args.cache_clouds, progress,
+                               None if args.scheduler else kernel_threads(args.workers))
         else:
             counts = dict.fromkeys(COUNTED, 0)
     except (OSError, TimeoutError, RuntimeError) as exc:  # RuntimeError: a worker that cannot start

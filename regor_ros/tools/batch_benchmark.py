@@ -19,7 +19,7 @@ import numpy as np
 
 from ..core import RegorConfig, is_success, register
 from ..io.cloud_io import read_cloud
-from .batch import Progress, ResultFile, open_client, run_batch
+from .batch import Progress, ResultFile, kernel_threads, open_client, run_batch
 from .batch_list import read_pairs
 from .bench_results import write_results
 
@@ -75,7 +75,8 @@ def run_batch_scaling(maps: Path, workers: List[int], config: RegorConfig, overr
             client.wait_for_workers(n)
             started = time.perf_counter() - start
             try:
-                run_batch(rows, ResultFile(path), overrides, client, CACHE_CLOUDS, Progress(len(rows), 0, False))
+                run_batch(rows, ResultFile(path), overrides, client, CACHE_CLOUDS, Progress(len(rows), 0, False),
+                          kernel_threads(n))
             finally:
                 client.close()
             seconds = time.perf_counter() - start

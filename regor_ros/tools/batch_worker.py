@@ -15,6 +15,8 @@ import time
 from collections import OrderedDict
 from typing import Dict, Optional
 
+import numba
+
 from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
 from ..io.cloud_io import read_cloud
 from .batch_list import PairRow
@@ -69,9 +71,13 @@ def result_row(result) -> Dict:
     return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(), **result.summary()}
 
 
-def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int) -> Dict:
-    """The output row of one pair; any failure becomes the row's ``error``, never an exception."""
+def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int,
+                 threads: Optional[int] = None) -> Dict:
+    """The output row of one pair; any failure becomes the row's ``error``, never an exception.
+    ``threads``: the compiled kernels' threads for this task (None: as many as the process has)."""
     start = time.perf_counter()
+    if threads:
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     out = {**row_identity(row), "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
         if row.error:
