@@ -115,25 +115,46 @@ def load_samples(paths: List[Path], method: str) -> List[Sample]:
 Thresholds = Tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
 
 
-def published(samples: List[Sample], thresholds: Thresholds) -> np.ndarray:
-    """Which samples a gate with these thresholds publishes."""
-    violation, min_features, max_ambiguity, min_features_partial = thresholds
-    shown = []
-    for s in samples:
-        ambiguous = s.ambiguity(violation)
-        shown.append(s.structural
-                     and s.feature_inliers >= (min_features if s.both_sides else min_features_partial)
-                     and (s.violation is None or s.violation <= violation)
-                     and (s.opposite is None or s.opposite <= s.max_opposite)
-                     and (ambiguous is None or ambiguous < max_ambiguity))
-    return np.array(shown, dtype=bool)
+class Runs:
+    """Samples as arrays, so that a threshold setting is judged on all of them at once (the fit tries
+    ~18,000 settings per fold); the rivals' ambiguity is worked out once per violation threshold."""
+
+    def __init__(self, samples: List[Sample]):
+        self.samples = samples
+        self.correct = np.array([s.correct for s in samples], dtype=bool)
+        self.structural = np.array([s.structural for s in samples], dtype=bool)
+        self.features = np.array([s.feature_inliers for s in samples], dtype=int)
+        self.both_sides = np.array([s.both_sides for s in samples], dtype=bool)
+        self.violation = np.array([np.nan if s.violation is None else s.violation for s in samples], dtype=float)
+        self.opposite_ok = np.array([s.opposite is None or s.opposite <= s.max_opposite for s in samples], dtype=bool)
+        self._ambiguity = {}
+
+    def ambiguity(self, max_violation: float) -> np.ndarray:
+        """Each run's ambiguity at this violation threshold (NaN: no rival counts)."""
+        if max_violation not in self._ambiguity:
+            values = [s.ambiguity(max_violation) for s in self.samples]
+            self._ambiguity[max_violation] = np.array([np.nan if a is None else a for a in values], dtype=float)
+        return self._ambiguity[max_violation]
+
+    def published(self, thresholds: Thresholds) -> np.ndarray:
+        """Which runs a gate with these thresholds publishes."""
+        violation, min_features, max_ambiguity, min_features_partial = thresholds
+        ambiguous = self.ambiguity(violation)
+        with np.errstate(invalid="ignore"):
+            return (self.structural & self.opposite_ok
+                    & (self.features >= np.where(self.both_sides, min_features, min_features_partial))
+                    & ~(self.violation > violation) & ~(ambiguous >= max_ambiguity))
+
+    def score(self, thresholds: Thresholds):
+        """(correct registrations, published correct, published wrong, registrations)."""
+        shown = self.published(thresholds)
+        return (int(self.correct.sum()), int((shown & self.correct).sum()), int((shown & ~self.correct).sum()),
+                len(self.samples))
 
 
 def score(samples: List[Sample], thresholds: Thresholds):
     """(correct registrations, published correct, published wrong, registrations)."""
-    shown = published(samples, thresholds)
-    return (sum(s.correct for s in samples), int(sum(p and s.correct for p, s in zip(shown, samples))),
-            int(sum(p and not s.correct for p, s in zip(shown, samples))), len(samples))
+    return Runs(samples).score(thresholds)
 
 
 def preset_thresholds(kind: str) -> Thresholds:
@@ -152,8 +173,9 @@ def fit(samples: List[Sample], kind: str) -> Thresholds:
                + [s.blinded(keep_source) for s in full for keep_source in (True, False)])
     if all(s.correct for s in partial):
         return violation, min_features, max_ambiguity, max(min_features, preset_thresholds(kind)[3])
+    runs = Runs(partial)
     safe = [int(f) for f in FEATURE_GRID if f >= min_features
-            and score(partial, (violation, min_features, max_ambiguity, int(f)))[2] == 0]
+            and runs.score((violation, min_features, max_ambiguity, int(f)))[2] == 0]
     return violation, min_features, max_ambiguity, safe[0] if safe else int(FEATURE_GRID[-1])
 
 
@@ -162,13 +184,13 @@ def _fit_full(samples: List[Sample], kind: str):
     sides; the preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
         return preset_thresholds(kind)[:3]
-    best_count, candidates = -1, []
+    runs, best_count, candidates = Runs(samples), -1, []
     for v in VIOLATION_GRID:
         for a in AMBIGUITY_GRID:
-            safe = [int(f) for f in FEATURE_GRID if score(samples, (v, int(f), a, int(f)))[2] == 0]
+            safe = [int(f) for f in FEATURE_GRID if runs.score((v, int(f), a, int(f)))[2] == 0]
             if not safe:
                 continue
-            count = score(samples, (v, safe[0], a, safe[0]))[1]   # the lowest safe feature threshold publishes most
+            count = runs.score((v, safe[0], a, safe[0]))[1]   # the lowest safe feature threshold publishes most
             if count > best_count:
                 best_count, candidates = count, []
             if count == best_count:
