@@ -16,8 +16,11 @@ figures that do not depend on how large the target is:
   independent ones). If the matches' targets were unrelated to their sources, each would agree
   with a given pose with the probability that a random target keypoint lies within tau of a
   given one (the target's own density: 1 / its size, for a map); the number of false alarms is
-  the hypotheses the search tried times the binomial tail of the observed count. More than one
-  expected false alarm means chance alone would have found that much support in this search.
+  the hypotheses the search tried times the binomial tail of the observed count. The pose was
+  fitted to those matches, so a rigid pose's minimal sample (three matches) agrees with it by
+  construction and is no evidence: chance must explain the other agreeing matches among the other
+  matches (the count of a-contrario RANSAC, Moisan & Stival 2004). More than one expected false
+  alarm means chance alone would have found that much support in this search.
 """
 from __future__ import annotations
 
@@ -31,6 +34,7 @@ from .geometry import transform_points
 
 DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
 DENSITY_SEED = 0
+MINIMAL_SAMPLE = 3     # point matches that fix a rigid pose: they agree with the pose fitted to them
 
 
 @dataclass
@@ -90,11 +94,13 @@ def chance_of_agreement(points: np.ndarray, tree: cKDTree, tolerance: float) -> 
 
 
 def log10_false_alarms(agreeing: int, trials: int, chance: float, tests: int) -> float:
-    """log10 of the expected number of poses, among ``tests`` tried, that chance alone gives at
-    least ``agreeing`` of ``trials`` agreeing matches."""
-    if agreeing <= 0:
+    """log10 of the expected number of poses, among ``tests`` fitted to these matches, that
+    chance alone gives at least ``agreeing`` of ``trials`` agreeing matches: beyond the minimal
+    sample each pose was fitted to, ``agreeing - 3`` of the other ``trials - 3``."""
+    beyond = agreeing - MINIMAL_SAMPLE
+    if beyond <= 0:
         return float(np.log10(max(tests, 1)))
-    tail = binom.logsf(agreeing - 1, trials, min(chance, 1.0)) / np.log(10)
+    tail = binom.logsf(beyond - 1, trials - MINIMAL_SAMPLE, min(chance, 1.0)) / np.log(10)
     return float(np.log10(max(tests, 1)) + tail)
 
 
