@@ -76,6 +76,8 @@ def test_map_scaling_tiles_the_map_and_scores_against_any_copy(tmp_path):
     assert int(rows[0]["queries"]) == 2 and int(rows[0]["correct"]) >= 1 and int(rows[1]["correct"]) >= 1
     # the queries ran against the map loaded from its cache (a warm start); a bigger map, a bigger cache
     assert float(rows[1]["cache_mb"]) > float(rows[0]["cache_mb"]) > 0
+    # each start's peak is measured in a process of its own
+    assert all(0.1 < float(r["cold_peak_memory_gb"]) < 5 and 0.1 < float(r["peak_memory_gb"]) < 5 for r in rows)
 
 
 def test_tiles_are_turned_copies_far_apart():

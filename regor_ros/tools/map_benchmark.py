@@ -12,8 +12,9 @@ queries against every other sequence's map: any published pose there is wrong. E
 method) runs in its own process so that its peak memory is its own.
 
 ``--map-scaling`` tiles one real map side by side (each copy turned about the vertical) to grow
-it, and measures map preparation, registration time and peak memory against map size. The copies
-are identical, so a pose is scored against the nearest copy's truth.
+it, and measures map preparation, registration time and peak memory against map size: a cold
+start (prepared from the file) and a warm start (from the cache) with the queries, each in a
+process of its own. The copies are identical, so a pose is scored against the nearest copy's truth.
 """
 from __future__ import annotations
 
@@ -303,79 +304,101 @@ def _plot_maps(rows: List[dict], path: Path) -> None:
 
 # --- scaling: one real map tiled ---
 
-def tiled(cloud: np.ndarray, tiles: int) -> tuple:
-    """``tiles`` copies of the map on a grid, each turned about the vertical, and their poses."""
+def tile_poses(tiles: int) -> List[np.ndarray]:
+    """Where each of ``tiles`` copies of a map goes: on a grid, each turned about the vertical."""
     side = int(np.ceil(np.sqrt(tiles)))
-    copies, poses = [], []
+    poses = []
     for i in range(tiles):
-        angle = 0.7 * i
-        c, s = np.cos(angle), np.sin(angle)
-        pose = to_matrix(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]),
-                         np.array([TILE_SPACING * (i % side), TILE_SPACING * (i // side), 0.0]))
-        copies.append(cloud @ pose[:3, :3].T + pose[:3, 3])
-        poses.append(pose)
-    return np.vstack(copies), poses
+        c, s = np.cos(0.7 * i), np.sin(0.7 * i)
+        poses.append(to_matrix(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]),
+                               np.array([TILE_SPACING * (i % side), TILE_SPACING * (i // side), 0.0])))
+    return poses
 
 
-def _run_scaling(job) -> dict:
-    """Prepare the tiled map from a file, cold (prepared and cached) then warm (the cache loaded:
-    a robot's restart), and register the queries against the warm one (in a child process)."""
-    import tempfile
+def tiled(cloud: np.ndarray, tiles: int) -> tuple:
+    """``tiles`` copies of the map placed by tile_poses, and their poses."""
+    poses = tile_poses(tiles)
+    return np.vstack([cloud @ pose[:3, :3].T + pose[:3, 3] for pose in poses]), poses
+
+
+def _cold_start(job) -> dict:
+    """Write the tiled map to files in ``scratch`` and prepare it from them, as a robot's first
+    start does (the cache written beside them); in a child process, so its peak is that start's."""
     warm_up()
-    folder, tiles, config = job
-    cloud, trajectory, queries = load_sequence(Path(folder))
+    folder, tiles, config, scratch = job
+    cloud, trajectory, _ = load_sequence(Path(folder))
     big, poses = tiled(cloud, tiles)
-    del cloud
-    with tempfile.TemporaryDirectory() as scratch:
-        map_file, trajectory_file = Path(scratch) / "map.npy", None
-        np.save(map_file, big)
-        if trajectory is not None:
-            trajectory_file = Path(scratch) / "trajectory.txt"
-            write_trajectory(trajectory_file, np.concatenate([P @ trajectory for P in poses]))
-        start = time.perf_counter()
-        cold = load_map_file(map_file, config, trajectory_file)
-        cold_seconds = time.perf_counter() - start
-        start = time.perf_counter()
-        warm = load_map_file(map_file, config, trajectory_file)
-        warm_seconds = time.perf_counter() - start
+    map_points = len(big)
+    map_file, trajectory_file = Path(scratch) / "map.npy", None
+    np.save(map_file, big)
+    del cloud, big
+    if trajectory is not None:
+        trajectory_file = Path(scratch) / "trajectory.txt"
+        write_trajectory(trajectory_file, np.concatenate([P @ trajectory for P in poses]))
+    start = time.perf_counter()
+    cold = load_map_file(map_file, config, trajectory_file)
+    return {"map_points": map_points, "map_seconds": time.perf_counter() - start,
+            "cache_mb": cold.info["map_cache_bytes"] / 1e6, "cold_peak_memory_gb": _peak_gb()}
+
+
+def _warm_start(job) -> dict:
+    """Load the prepared map from its cache (a robot's restart) and register the queries against
+    it; in a child process of its own, so its peak is a restarted robot's."""
+    warm_up()
+    folder, tiles, config, scratch = job
+    _, _, queries = load_sequence(Path(folder))
+    queries = [q for q in queries if q.kind == "scan"][:SCALING_QUERIES]
+    poses = tile_poses(tiles)
+    trajectory_file = Path(scratch) / "trajectory.txt"
+    start = time.perf_counter()
+    warm = load_map_file(Path(scratch) / "map.npy", config, trajectory_file if trajectory_file.is_file() else None)
+    warm_seconds = time.perf_counter() - start
     prepared = warm.prepared
     seconds, matching, correct, published = [], [], 0, 0
-    for query in [q for q in queries if q.kind == "scan"][:SCALING_QUERIES]:
+    for query in queries:
         result = register(query.scan, prepared, config)
         seconds.append(result.timings["total"])
         matching.append(result.timings["matching"])
         success = _score(result.transform, [P @ query.truth for P in poses])[0]
         correct += success
         published += success and result.accepted
-    return {"tiles": tiles, "map_points": len(big), "map_keypoints": len(prepared),
-            "exact_search": prepared.index.exact, "map_seconds": cold_seconds,
-            "cache_mb": cold.info["map_cache_bytes"] / 1e6, "warm_seconds": warm_seconds,
+    return {"map_keypoints": len(prepared), "exact_search": prepared.index.exact, "warm_seconds": warm_seconds,
             "first_pose_seconds": warm_seconds + seconds[0],
             "median_seconds": _median(seconds), "median_matching_seconds": _median(matching),
             "queries": len(seconds), "correct": correct, "published_correct": published,
             "peak_memory_gb": _peak_gb()}
 
 
-SCALING_FIELDS = ["tiles", "map_points", "map_keypoints", "exact_search", "map_seconds", "cache_mb", "warm_seconds",
-                  "first_pose_seconds", "median_seconds", "median_matching_seconds", "queries", "correct",
-                  "published_correct", "peak_memory_gb"]
+def _run_scaling(folder: Path, tiles: int, config: RegorConfig) -> dict:
+    """One map size: its cold start and its warm start with the queries, each in a process of its own."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as scratch:
+        job = (str(folder), tiles, config, scratch)
+        return {"tiles": tiles, **_in_child(_cold_start, job), **_in_child(_warm_start, job)}
+
+
+SCALING_FIELDS = ["tiles", "map_points", "map_keypoints", "exact_search", "map_seconds", "cache_mb",
+                  "cold_peak_memory_gb", "warm_seconds", "first_pose_seconds", "median_seconds",
+                  "median_matching_seconds", "queries", "correct", "published_correct", "peak_memory_gb"]
 
 
 def run_scaling(folder: Path, tiles: List[int], config: RegorConfig, out: Path, header: str) -> str:
     rows = []
     for count in tiles:
-        rows.append(_in_child(_run_scaling, (str(folder), count, config)))
+        rows.append(_run_scaling(folder, count, config))
         print(", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in rows[-1].items()),
               flush=True)
     lines = [header, "", "| tiles | map points | map keypoints | search | cold start s (prepared, cached) | cache MB "
              "| warm start s (cache loaded) | first pose after a warm start s | median s per query (matching) "
-             "| correct (published) | peak memory GB |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| correct (published) | peak memory GB, cold start / warm start and queries |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['tiles']} | {r['map_points']:,} | {r['map_keypoints']:,} | "
                      f"{'exact' if r['exact_search'] else 'index'} | {r['map_seconds']:.1f} | {r['cache_mb']:.0f} | "
                      f"{r['warm_seconds']:.2f} | {r['first_pose_seconds']:.2f} | "
                      f"{r['median_seconds']:.2f} ({r['median_matching_seconds']:.2f}) | "
-                     f"{r['correct']}/{r['queries']} ({r['published_correct']}) | {r['peak_memory_gb']:.2f} |")
+                     f"{r['correct']}/{r['queries']} ({r['published_correct']}) | "
+                     f"{r['cold_peak_memory_gb']:.2f} / {r['peak_memory_gb']:.2f} |")
     report = "\n".join(lines) + "\n"
     write_results(out, "map_scaling", report, rows, SCALING_FIELDS, _plot_scaling)
     return report
@@ -392,7 +415,9 @@ def _plot_scaling(rows: List[dict], path: Path) -> None:
     axes[0].set_xlabel("map points [millions]")
     axes[0].set_ylabel("seconds per query")
     axes[0].legend()
-    axes[1].plot(points, [r["peak_memory_gb"] for r in rows], "o-")
+    axes[1].plot(points, [r["cold_peak_memory_gb"] for r in rows], "s--", label="cold start (preparing)")
+    axes[1].plot(points, [r["peak_memory_gb"] for r in rows], "o-", label="warm start (cache) and queries")
+    axes[1].legend()
     axes[1].set_xlabel("map points [millions]")
     axes[1].set_ylabel("peak memory [GB]")
     fig.tight_layout()
