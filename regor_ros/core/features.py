@@ -172,9 +172,9 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
             check_viewpoint(vp, name if len(cloud.parts) == 1 else f"{name} scan {i}")
     parts = [clean_points(p, name if len(cloud.parts) == 1 else f"{name} scan {i}")
              for i, p in enumerate(cloud.parts)]
-    points = np.vstack(parts)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    down = pcd.voxel_down_sample(config.voxel_size)
+    points = parts[0] if len(parts) == 1 else np.vstack(parts)
+    input_size = len(points)
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(config.voxel_size)
     surface = np.asarray(down.points, dtype=np.float64)
     if config.remove_ground and len(down.points) >= GROUND_MIN_POINTS:
         ground = largest_plane(np.asarray(down.points), config.voxel_size)
@@ -183,14 +183,8 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     if n < config.min_points:
         raise RegistrationError(
             f"{name}: {n} points after downsampling at voxel_size={config.voxel_size:g} m "
-            f"(from {len(points)}), need at least {config.min_points}; lower features.voxel_size "
+            f"(from {input_size}), need at least {config.min_points}; lower features.voxel_size "
             "or send a denser cloud")
-    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
-        radius=config.normal_radius, max_nn=config.normal_max_nn))
-    keypoints = np.asarray(down.points, dtype=np.float64)
-    normals = np.asarray(down.normals, dtype=np.float64)
-    features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
-    features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     views, map_view = (), None
     if cloud.viewpoints is not None:
         if trajectory is not None:
@@ -203,7 +197,14 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
         except ValueError as exc:
             raise RegistrationError(f"{name} trajectory: {exc}") from None
         map_view = MapView.build(surface, config.voxel_size, config.range_image_resolution, positions)
+    del parts, points   # a map's raw points: not needed past here, and a copy of them is 45 MB a million
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
+        radius=config.normal_radius, max_nn=config.normal_max_nn))
+    keypoints = np.asarray(down.points, dtype=np.float64)
+    normals = np.asarray(down.normals, dtype=np.float64)
+    features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
+    features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                          config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
-                         len(points), views, map_view)
+                         input_size, views, map_view)

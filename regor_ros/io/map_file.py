@@ -141,6 +141,7 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     points = read_map(map_file, config.features)
     trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
     prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
+    del points   # the raw map: not needed while the cache is written
     info["map_cache"] = "not written" if cache else "off"
     for path in paths:
         try:
