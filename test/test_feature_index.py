@@ -1,5 +1,6 @@
 """The feature index: exact against a scan, an inverted file against a map, restricted views."""
 import numpy as np
+import pytest
 from conftest import load_map_query
 
 from regor_ros.core import RegorConfig, prepare_cloud
@@ -99,3 +100,20 @@ def test_nearest_and_candidates_reuses_a_unique_best_candidate_only_in_an_invert
             np.testing.assert_array_equal(nearest[rows], candidates[:, 0])   # random data: no ties
             assert (similarity[rows] >= scanned_similarity[rows] - 1e-6).all()          # float rounding
             assert (similarity[rows] > scanned_similarity[rows]).any()        # more cells found better
+
+
+def test_an_inverted_file_saved_and_restored_searches_as_the_trained_one():
+    """A cached map keeps the cell centres and each row's cell, not FAISS's serialisation; the
+    rows filed again in row order give the same lists, so the same candidates."""
+    rng = np.random.default_rng(3)
+    features = rng.normal(size=(30000, 33)).astype(np.float32)
+    features /= np.linalg.norm(features, axis=1, keepdims=True)
+    trained = FeatureIndex(features, 10000, 64, 32)
+    centres, cells = trained.saved()
+    assert centres.shape[1] == 33 and cells.shape == (30000,)
+    restored = FeatureIndex(features, 10000, 64, 32, saved=(centres, cells))
+    queries = features[:500] + 0.05 * rng.normal(size=(500, 33)).astype(np.float32)
+    for a, b in zip(trained.search(queries, 20), restored.search(queries, 20)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="saved index"):
+        FeatureIndex(features[:20000], 10000, 64, 32, saved=(centres, cells))
