@@ -55,3 +55,4 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
     report = (tmp_path / "gate.md").read_text()
     assert "| 3dmatch_kitchen |" in report and "| 3dmatch_hotel |" in report
     assert "fitted on all of it" in report
+    assert "Wrong poses published with their place held out" in report
