@@ -21,7 +21,7 @@ Features are unit vectors: inner product ranks them as the feature distance does
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
 import faiss
 import numpy as np
@@ -48,35 +48,38 @@ def _reservoir_top_k():
 
 
 class CellTable:
-    """An inverted file's rows grouped by cell in one array, for a by-cell nearest-neighbour scan."""
+    """An inverted file's rows grouped by cell, for a by-cell nearest-neighbour scan. A full
+    table's feature blocks are views of FAISS's own lists (an IVF-Flat list stores its rows'
+    features as they are): no second copy of a map's features (77 MB at 582 k rows)."""
 
-    def __init__(self, quantizer, ids: np.ndarray, features: np.ndarray, bounds: np.ndarray):
+    def __init__(self, quantizer, ids: np.ndarray, blocks: List[np.ndarray], bounds: np.ndarray, owner=None):
         self.quantizer = quantizer  # FAISS index over the cell centres: which cells a query probes
         self.ids = ids              # (M,) index rows, cell by cell
-        self.features = features    # (M, D) their features
+        self.blocks = blocks        # per cell, (rows in it, D) their features
         self.bounds = bounds        # (cells + 1,) cell c holds rows bounds[c]:bounds[c + 1]
+        self._owner = owner         # the inverted file whose memory the blocks view
 
     @property
     def cells(self) -> int:
         return len(self.bounds) - 1
 
     @classmethod
-    def of(cls, ivf, features: np.ndarray) -> "CellTable":
+    def of(cls, ivf) -> "CellTable":
         """The layout of a filled FAISS inverted file (its cells, in its order)."""
-        lists = ivf.invlists
-        cells = ivf.nlist
-        sizes = np.array([lists.list_size(c) for c in range(cells)], dtype=np.int64)
+        lists, dim = ivf.invlists, ivf.d
+        sizes = np.array([lists.list_size(c) for c in range(ivf.nlist)], dtype=np.int64)
         ids = np.concatenate([faiss.rev_swig_ptr(lists.get_ids(c), int(sizes[c])).copy()
-                              for c in range(cells) if sizes[c]] or [np.zeros(0, np.int64)])
-        return cls(ivf.quantizer, ids, features[ids],
-                   np.concatenate([[0], np.cumsum(sizes)]))
+                              for c in range(ivf.nlist) if sizes[c]] or [np.zeros(0, np.int64)])
+        blocks = [faiss.rev_swig_ptr(lists.get_codes(c), int(size) * dim * 4).view(np.float32).reshape(-1, dim)
+                  if size else np.zeros((0, dim), np.float32) for c, size in enumerate(sizes)]
+        return cls(ivf.quantizer, ids, blocks, np.concatenate([[0], np.cumsum(sizes)]), ivf)
 
     def subset(self, member: np.ndarray) -> "CellTable":
-        """The table of the rows whose ``member`` flag is set, in the same cells."""
-        cell_of_row = np.repeat(np.arange(self.cells), np.diff(self.bounds))
+        """The table of the rows whose ``member`` flag is set, in the same cells (copied)."""
         keep = member[self.ids]
-        return CellTable(self.quantizer, self.ids[keep], self.features[keep],
-                         np.searchsorted(cell_of_row[keep], np.arange(self.cells + 1)))
+        blocks = [block[keep[self.bounds[c]:self.bounds[c + 1]]] for c, block in enumerate(self.blocks)]
+        return CellTable(self.quantizer, self.ids[keep], blocks,
+                         np.concatenate([[0], np.cumsum([len(b) for b in blocks])]))
 
     def nearest(self, queries: np.ndarray, probes: int) -> Tuple[np.ndarray, np.ndarray]:
         """The most similar row among each query's probed cells: (ids (Q,), -1 when none;
@@ -92,7 +95,7 @@ class CellTable:
         found = np.full(len(queries), -1, dtype=np.int64)
         for c in np.flatnonzero((np.diff(starts) > 0) & (np.diff(self.bounds) > 0)):
             asking = query[starts[c]:starts[c + 1]]
-            similarity = queries[asking] @ self.features[self.bounds[c]:self.bounds[c + 1]].T
+            similarity = queries[asking] @ self.blocks[c].T
             column = similarity.argmax(axis=1)
             value = similarity[np.arange(len(asking)), column]
             better = value > best[asking]
@@ -150,7 +153,7 @@ class FeatureIndex:
         if self._index.ntotal == 0:
             self._index.add(features)
         if not self.exact:
-            self._cells = CellTable.of(self._index, features)
+            self._cells = CellTable.of(self._index)
 
     def __len__(self) -> int:
         return self.size
