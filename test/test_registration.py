@@ -224,7 +224,9 @@ def test_the_authors_quirks_can_be_reproduced(kitchen_pair):
 
 def test_plane_refinement_brings_a_sparse_scan_pair_from_a_metre_off_to_centimetres():
     """Two Livox Avia scans 11 m apart (HKU campus): the point level pairs keypoints up to tau_e
-    = 1.2 m apart and settles about a metre off, published; point-to-plane lands on the truth."""
+    = 1.2 m apart and settles about a metre off; point-to-plane lands on the truth. (Whether the
+    gate publishes it is not this test's subject: since the minimal sample is discounted, its 7
+    independent agreeing matches of 216 are what chance gives in this search, and it is withheld.)"""
     require_shared_data("the Avia scan pair")
     folder = DATA / "maps" / "fastlio_avia_hku2" / "queries"
     src, tgt = np.load(folder / "scan_000005" / "scan.npy"), np.load(folder / "scan_000057" / "scan.npy")
@@ -232,7 +234,7 @@ def test_plane_refinement_brings_a_sparse_scan_pair_from_a_metre_off_to_centimet
     cfg = RegorConfig.preset("outdoor")
     point = register(src, tgt, cfg.replace({"estimation.plane_refinement": False}))
     plane = register(src, tgt, cfg)
-    assert plane.accepted and is_success(plane.transform, T_gt, "outdoor")
+    assert is_success(plane.transform, T_gt, "outdoor")
     assert translation_error(plane.transform, T_gt) < 0.2 < translation_error(point.transform, T_gt)
     assert rotation_error_deg(plane.transform, T_gt) < rotation_error_deg(point.transform, T_gt)
 
