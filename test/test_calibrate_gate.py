@@ -1,7 +1,7 @@
 """The gate calibration: thresholds that publish no wrong pose, chosen without the held-out place."""
 import csv
 
-from regor_ros.tools.calibrate_gate import Sample, fit, load_samples, main, score
+from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score
 
 
 def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
@@ -56,3 +56,13 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
     assert "| 3dmatch_kitchen |" in report and "| 3dmatch_hotel |" in report
     assert "fitted on all of it" in report
     assert "Wrong poses published with their place held out" in report
+
+
+def test_the_alone_fit_does_not_lean_on_free_space():
+    """A wrong pose with 80 agreeing matches that free space stops: the joint fit may publish 60,
+    the alone fit needs more than 80 whatever free space says."""
+    samples = [sample("a", True, 60, 0.01), sample("a", True, 100, 0.01), sample("b", False, 80, 0.40)]
+    assert score(samples, fit(samples, "indoor"))[1:3] == (2, 0)
+    alone = fit_alone(samples, "indoor")
+    assert 80 < alone[1] <= 100 and alone[3] >= alone[1]
+    assert score(samples, alone)[1:3] == (1, 0)
