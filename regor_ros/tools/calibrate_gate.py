@@ -31,7 +31,7 @@ import argparse
 import csv
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import List, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -48,7 +48,7 @@ class Sample:
     kind: str
     places: tuple            # the source's place, and the target's for a cross-place run
     correct: bool            # the pose is right (never for a cross-place run)
-    structural: bool         # passes the checks that are not fitted
+    structural: bool         # passes the structural checks and those against chance
     feature_inliers: int
     violations: tuple           # (source, target) free-space figures; None for a side not checked
     opposite: Optional[float] = None  # matched surface seen from opposite sides
@@ -67,6 +67,11 @@ class Sample:
     @property
     def max_opposite(self) -> float:
         return RegorConfig.preset(self.kind).acceptance.max_opposite_sides
+
+    @property
+    def passes_unfitted(self) -> bool:
+        """Passes every check that is not fitted: the structural ones, chance, opposite sides."""
+        return self.structural and (self.opposite is None or self.opposite <= self.max_opposite)
 
     def blinded(self, keep_source: bool) -> "Sample":
         """This run as if the target's viewpoint (and the source's too, unless ``keep_source``)
@@ -128,11 +133,10 @@ class Runs:
     def __init__(self, samples: List[Sample]):
         self.samples = samples
         self.correct = np.array([s.correct for s in samples], dtype=bool)
-        self.structural = np.array([s.structural for s in samples], dtype=bool)
+        self.unfitted = np.array([s.passes_unfitted for s in samples], dtype=bool)
         self.features = np.array([s.feature_inliers for s in samples], dtype=int)
         self.both_sides = np.array([s.both_sides for s in samples], dtype=bool)
         self.violation = np.array([np.nan if s.violation is None else s.violation for s in samples], dtype=float)
-        self.opposite_ok = np.array([s.opposite is None or s.opposite <= s.max_opposite for s in samples], dtype=bool)
         self._ambiguity = {}
 
     def ambiguity(self, max_violation: float) -> np.ndarray:
@@ -147,7 +151,7 @@ class Runs:
         violation, min_features, max_ambiguity, min_features_partial = thresholds
         ambiguous = self.ambiguity(violation)
         with np.errstate(invalid="ignore"):
-            return (self.structural & self.opposite_ok
+            return (self.unfitted
                     & (self.features >= np.where(self.both_sides, min_features, min_features_partial))
                     & ~(self.violation > violation) & ~(ambiguous >= max_ambiguity))
 
@@ -192,8 +196,7 @@ def fit_alone(samples: List[Sample], kind: str) -> Thresholds:
     violation, _, max_ambiguity, _ = preset_thresholds(kind)
 
     def above(runs: List[Sample]) -> int:
-        wrong = [s.feature_inliers for s in runs
-                 if not s.correct and s.structural and (s.opposite is None or s.opposite <= s.max_opposite)]
+        wrong = [s.feature_inliers for s in runs if not s.correct and s.passes_unfitted]
         return int(next((f for f in FEATURE_GRID if f > max(wrong, default=-1)), FEATURE_GRID[-1]))
 
     full = [s for s in samples if s.both_sides]
@@ -250,22 +253,27 @@ def _blind_row(name: str, thresholds: Thresholds, held: List[Sample]) -> str:
             f"{map_map[1]} / {map_map[2]} |")
 
 
-def folds(group: List[Sample], kind: str, fitter=fit):
-    """Leave one place out: (place, its runs, the thresholds fitted without them) for each place."""
-    for family in families(group):
-        held = [s for s in group if any(same_place(p, family) for p in s.places)]
-        rest = [s for s in group if not any(same_place(p, family) for p in s.places)]
-        yield family, held, fitter(rest, kind)
-
-
-def headline(samples: List[Sample], fitter=fit) -> str:
-    """Per kind: what the gate publishes on places it was not fitted on, against the in-sample fit."""
-    lines = ["| kind | held-out runs | correct | published correct, held out | published WRONG, held out | "
-             "published WRONG, in-sample |", "|---|---|---|---|---|---|"]
+def folds(samples: List[Sample], fitter=fit) -> Dict[str, list]:
+    """Leave one place out, per kind: [(place, its runs, the thresholds fitted without them)]."""
+    out = {}
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
-        held = sum((np.array(score(runs, thresholds)) for _, runs, thresholds in folds(group, kind, fitter)),
-                   np.zeros(4, dtype=int))
+        out[kind] = []
+        for family in families(group):
+            held = [s for s in group if any(same_place(p, family) for p in s.places)]
+            rest = [s for s in group if not any(same_place(p, family) for p in s.places)]
+            out[kind].append((family, held, fitter(rest, kind)))
+    return out
+
+
+def headline(samples: List[Sample], folded: Dict[str, list], fitter=fit) -> str:
+    """Per kind: what the gate publishes on places it was not fitted on (``folded``: folds() with
+    ``fitter``), against the in-sample fit."""
+    lines = ["| kind | held-out runs | correct | published correct, held out | published WRONG, held out | "
+             "published WRONG, in-sample |", "|---|---|---|---|---|---|"]
+    for kind, kind_folds in folded.items():
+        group = [s for s in samples if s.kind == kind]
+        held = sum((np.array(score(runs, thresholds)) for _, runs, thresholds in kind_folds), np.zeros(4, dtype=int))
         inside = score(group, fitter(group, kind))
         lines.append(f"| {kind} | {held[3]} | {held[0]} | {held[1]} | **{held[2]}** | {inside[2]} |")
     return "\n".join(lines)
@@ -278,18 +286,18 @@ def unfitted_share(samples: List[Sample]) -> str:
              "among them) | correct poses passing the unfitted checks |", "|---|---|---|---|---|"]
     for kind in sorted({s.kind for s in samples}):
         wrong = [s for s in samples if s.kind == kind and not s.correct]
-        left = [s for s in wrong if s.structural and (s.opposite is None or s.opposite <= s.max_opposite)]
-        correct = [s for s in samples if s.kind == kind and s.correct and s.structural]
+        left = [s for s in wrong if s.passes_unfitted]
+        correct = [s for s in samples if s.kind == kind and s.correct and s.passes_unfitted]
         most = max((s.feature_inliers for s in left), default=0)
         lines.append(f"| {kind} | {len(wrong)} | {len(wrong) - len(left)} | {len(left)} ({most}) | {len(correct)} |")
     return "\n".join(lines)
 
 
-def wrong_held_out(samples: List[Sample]) -> str:
+def wrong_held_out(folded: Dict[str, list]) -> str:
     """Each wrong pose published with its place held out, and its figures: what a check missed."""
     lines = ["| kind | held out | run | feature inliers | free space (source, target) |", "|---|---|---|---|---|"]
-    for kind in sorted({s.kind for s in samples}):
-        for family, held, thresholds in folds([s for s in samples if s.kind == kind], kind):
+    for kind, kind_folds in folded.items():
+        for family, held, thresholds in kind_folds:
             for s, shown in zip(held, Runs(held).published(thresholds)):
                 if shown and not s.correct:
                     lines.append(f"| {kind} | {family} | {s.run} | {s.feature_inliers} | "
@@ -298,11 +306,13 @@ def wrong_held_out(samples: List[Sample]) -> str:
 
 
 def report(samples: List[Sample]) -> str:
-    lines = ["## Held out (the headline)", "", headline(samples), "",
-             "Wrong poses published with their place held out:", "", wrong_held_out(samples), "",
+    folded = folds(samples)
+    lines = ["## Held out (the headline)", "", headline(samples, folded), "",
+             "Wrong poses published with their place held out:", "", wrong_held_out(folded), "",
              "What the fitted thresholds are left to do:", "", unfitted_share(samples), "",
              "The same, with the feature thresholds fitted to stop those alone (free space and ambiguity at "
-             "the presets' values, not leaned on):", "", headline(samples, fit_alone), "", "## Per place", ""]
+             "the presets' values, not leaned on):", "", headline(samples, folds(samples, fit_alone), fit_alone), "",
+             "## Per place", ""]
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
         table = [f"### {kind}", "", "| held out | max_free_space_violation | min_feature_inliers | "
@@ -314,7 +324,7 @@ def report(samples: List[Sample]) -> str:
                  "|---|---|---|---|---|---|"]
         totals = np.zeros(4, dtype=int)
         blind_totals = np.zeros((2, 4), dtype=int)
-        for family, held, thresholds in folds(group, kind):
+        for family, held, thresholds in folded[kind]:
             figures = score(held, thresholds)
             totals += figures
             table.append(_row(family, thresholds, figures))
