@@ -66,3 +66,13 @@ def test_the_alone_fit_does_not_lean_on_free_space():
     alone = fit_alone(samples, "indoor")
     assert 80 < alone[1] <= 100 and alone[3] >= alone[1]
     assert score(samples, alone)[1:3] == (1, 0)
+
+
+def test_among_equally_good_thresholds_the_fit_takes_the_strictest():
+    """Every feature threshold from 25 to 60 publishes both correct runs here; the fit takes 60, so
+    a wrong pose of an unseen place with 45 agreeing matches and clean free space is not published."""
+    samples = [sample("a", True, 60, 0.03), sample("a", True, 90, 0.01), sample("b", False, 20, 0.01)]
+    thresholds = fit(samples, "indoor")
+    assert thresholds[:3] == (0.03, 60, 0.5)
+    assert score(samples, thresholds)[1:3] == (2, 0)
+    assert score([sample("c", False, 45, 0.0)], thresholds)[2] == 0
