@@ -31,8 +31,8 @@ def local_matches(seed_src: np.ndarray, seed_tgt: np.ndarray, source: PreparedCl
                   target: PreparedCloud, k: int, gmm_k: int) -> LocalMatches:
     """Group the k nearest keypoints around each seed on both sides and match them by GMM."""
     s = len(seed_src)
-    _, near_p = source.tree.query(seed_src, k=k, workers=-1)
-    _, near_q = target.tree.query(seed_tgt, k=k, workers=-1)
+    _, near_p = source.tree.query(seed_src, k=k)
+    _, near_q = target.tree.query(seed_tgt, k=k)
     near_p, near_q = near_p.reshape(s, k), near_q.reshape(s, k)
     similarity = source.features[near_p] @ np.swapaxes(target.features[near_q], 1, 2)
     region, row, col = np.nonzero(generalized_mutual_matches(similarity, min(gmm_k, k)))
