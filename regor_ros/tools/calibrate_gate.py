@@ -21,8 +21,8 @@ counts): every tied choice publishes the same correct poses where it was fitted,
 published costs more than a correct one withheld, so the room left is left to the wrong side
 that the fit did not see. Leave one
 place (scene or sensor family) out: fit on every registration that does not involve it, report on
-those that do: the headline, first, with each wrong pose it let through. The last line of each
-table fits on everything, an in-sample figure, and the one after it scores the preset's own values
+those that do: the headline, first, with each wrong pose it let through. The last two lines of each
+table: the fit on everything (an in-sample figure), and the preset's own values as shipped
 (chosen with this report in hand, not by it). The headline is
 repeated for a fit that cannot lean on two thresholds at once: the feature counts alone stop
 every wrong pose the unfitted checks let through (``fit_alone``). A second table
