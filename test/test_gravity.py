@@ -8,6 +8,7 @@ from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
 from regor_ros.core.gravity import GravityPrior
 from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
+from regor_ros.core.verification import gravity_failure
 from regor_ros.tools.pairs_benchmark import UP_Z, Pair
 
 PAIR = "mulran_riv02_048_to_044"  # 12 m apart, 72 % overlap: Regor registers it with or without the prior
@@ -61,11 +62,11 @@ def test_a_level_pose_passes_and_a_tipped_over_one_is_rejected_with_the_reason(g
     source = prepare_cloud(src, config, viewpoint=[0, 0, 0])
     target = prepare_cloud(tgt, config, viewpoint=[0, 0, 0])
     prior = GravityPrior.of(config.gravity)
-    assert prior.failure(T, source, target) == ""
-    assert "gravity.max_tilt=10" in prior.failure(tipped(T, 25.0), source, target)
+    assert gravity_failure(prior, T, source, target) == ""
+    assert "gravity.max_tilt=10" in gravity_failure(prior, tipped(T, 25.0), source, target)
     lifted = T.copy()
     lifted[2, 3] += 4.0  # 12 m away: 0.5 m plus 12 m x tan(10 deg) = 2.6 m allowed
-    assert "gravity.height_tolerance=0.5" in prior.failure(lifted, source, target)
+    assert "gravity.height_tolerance=0.5" in gravity_failure(prior, lifted, source, target)
     assert prior.allows(np.stack([T, lifted, tipped(T, 25.0)]), source, target).tolist() == [True, False, False]
 
 

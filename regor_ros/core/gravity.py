@@ -9,8 +9,9 @@ impossible and never competes with the right one. Where it pays:
   length threshold plus what the tilt allows over their distance (the search becomes 4-DoF in
   spirit, as Quatro's and hdl_global_localization's are);
 - estimation: every rotation (hypotheses, refinements) is brought inside the tilt cone;
-- the gate: a pose outside the cone, or whose sensor height leaves the band, is rejected with
-  the reason, and a symmetric rival that turns the scan over is not a rival.
+- the gate (core/verification.py, with the reason): a pose outside the cone, or whose sensor
+  height leaves the band, is rejected, and a symmetric rival that turns the scan over is not a
+  rival.
 
 The height band is relative to where the target was seen from (its sensor, or the map's
 trajectory, which is the same robot's sensor height above its own floor): the source's sensor
@@ -80,21 +81,6 @@ class GravityPrior:
         height offset along up, the slack per metre): two correct correspondences' offsets agree
         within the length threshold plus the tilt's share of their distance."""
         return source @ self.source_up - target @ self.target_up, float(np.sin(np.radians(self.max_tilt_deg)))
-
-    def failure(self, T: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> str:
-        """Why the pose breaks the prior (empty when it does not): tilt, then sensor height."""
-        tilt = float(self.tilt_deg(T[:3, :3]))
-        if tilt > self.max_tilt_deg + 1e-6:
-            return (f"the pose tilts the source's up by {tilt:.1f} deg from the target's "
-                    f"(gravity.max_tilt={self.max_tilt_deg:g}): tipped over")
-        band = self.height_band(T[None], source, target)
-        if band is not None and abs(band[0][0]) > band[1][0]:
-            height, allowed, distance = (float(v[0]) for v in band)
-            return (f"the pose puts the source's sensor {height:+.2f} m from the height the target "
-                    f"was seen from, {distance:.1f} m away (allowed {allowed:.2f} m: "
-                    f"gravity.height_tolerance={self.height_tolerance:g} plus gravity.max_slope="
-                    f"{self.max_slope_deg:g} deg over that distance)")
-        return ""
 
     def allows(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> np.ndarray:
         """(S,) bool: which of the (S, 4, 4) poses stay inside the tilt cone and keep the source's

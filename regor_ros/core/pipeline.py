@@ -29,7 +29,7 @@ from .metrics import random_rigid_motion
 from .regenerate import regenerate
 from .search_region import SearchRegion, restrict
 from .sequence import ScanSequence
-from .verification import Rival, assess, reverse_failure, search_region_failure, visibility_figures
+from .verification import Rival, assess, free_space_plausible, reverse_failure, search_region_failure
 from .visibility import ORIGIN, VisibilityFigures
 
 CloudInput = Union[np.ndarray, PreparedCloud]
@@ -280,8 +280,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     lap("matching")
 
     def plausible(T: np.ndarray) -> bool:
-        worst = visibility_figures(T, src_cloud, tgt_cloud, config.acceptance).worst
-        return worst is None or worst <= config.acceptance.max_free_space_violation
+        return free_space_plausible(T, src_cloud, tgt_cloud, config.acceptance)
 
     initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng,
                             plausible if config.initial.free_space_selection else None, prior)

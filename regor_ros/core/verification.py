@@ -153,7 +153,7 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
     visibility = visibility_figures(T, source, target, gate, overlap_index, uncertainty)
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
     if not reason and prior is not None:
-        reason = prior.failure(T, source, target)
+        reason = gravity_failure(prior, T, source, target)
     rivals: List[Rival] = []
     ambiguous = None
     if not reason:  # the rivals cost a refinement each: only for poses that may be published
@@ -163,6 +163,30 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
         reason = _chance_failure(support, gate) or _evidence_failure(
             num_feature_inliers, visibility, ambiguous, gate)
     return Verdict(not reason, reason, visibility, rivals, ambiguous, support)
+
+
+def gravity_failure(prior: GravityPrior, T: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> str:
+    """Why the pose breaks the gravity prior (empty when it does not): tilt, then sensor height."""
+    tilt = float(prior.tilt_deg(T[:3, :3]))
+    if tilt > prior.max_tilt_deg + 1e-6:
+        return (f"the pose tilts the source's up by {tilt:.1f} deg from the target's "
+                f"(gravity.max_tilt={prior.max_tilt_deg:g}): tipped over")
+    band = prior.height_band(T[None], source, target)
+    if band is not None and abs(band[0][0]) > band[1][0]:
+        height, allowed, distance = (float(v[0]) for v in band)
+        return (f"the pose puts the source's sensor {height:+.2f} m from the height the target "
+                f"was seen from, {distance:.1f} m away (allowed {allowed:.2f} m: "
+                f"gravity.height_tolerance={prior.height_tolerance:g} plus gravity.max_slope="
+                f"{prior.max_slope_deg:g} deg over that distance)")
+    return ""
+
+
+def free_space_plausible(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
+                         gate: AcceptanceConfig) -> bool:
+    """Whether the pose passes the free-space check (initial.free_space_selection: FS-TCD's winner
+    is the fittest hypothesis this holds for)."""
+    worst = visibility_figures(T, source, target, gate).worst
+    return worst is None or worst <= gate.max_free_space_violation
 
 
 def half_turns(points: np.ndarray) -> np.ndarray:
