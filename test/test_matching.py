@@ -3,7 +3,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from regor_ros.core.feature_index import FeatureIndex
-from regor_ros.core.matching import feature_distance, generalized_mutual_matches, match_features, mutual_matches
+from regor_ros.core.matching import feature_distance, generalized_mutual_matches, match_features
 
 
 def unit_rows(rng, n):
@@ -16,25 +16,42 @@ def cloud(features):
     return SimpleNamespace(features=features, index=FeatureIndex(features, len(features), 1, 1))
 
 
+def top_mask(similarity, k, axis):
+    """The k largest along ``axis`` by a stable sort (ties to the lower index): the reference."""
+    order = np.argsort(-similarity, axis=axis, kind="stable")
+    mask = np.zeros(similarity.shape, dtype=bool)
+    np.put_along_axis(mask, np.take(order, np.arange(min(k, similarity.shape[axis])), axis=axis), True, axis=axis)
+    return mask
+
+
+def reference_gmm(similarity, k):
+    return ((top_mask(similarity, 1, -1) & top_mask(similarity, k, -2))
+            | (top_mask(similarity, k, -1) & top_mask(similarity, 1, -2)))
+
+
+def test_gmm_is_the_sorted_definition_ties_included():
+    rng = np.random.default_rng(0)
+    for shape in [(20, 30, 30), (7, 12, 5), (3, 4, 9)]:
+        sim = rng.random(shape).astype(np.float32)
+        sim[:, ::3] = np.round(sim[:, ::3], 1)  # ties, within rows and columns
+        for k in (1, 3, 5):
+            np.testing.assert_array_equal(generalized_mutual_matches(sim, k), reference_gmm(sim, k))
+
+
 def test_gmm_contains_mutual_matches_and_at_most_two_pairs_per_point():
     rng = np.random.default_rng(0)
     sim = rng.random((20, 30, 30)).astype(np.float32)
-    mutual = mutual_matches(sim)
+    mutual = generalized_mutual_matches(sim, 1)
     gmm = generalized_mutual_matches(sim, 3)
     assert (gmm | mutual == gmm).all()
     assert gmm.sum() > mutual.sum()
     assert (gmm.sum(axis=(1, 2)) <= 2 * 30).all()
 
 
-def test_gmm_with_k1_is_mutual_matching():
-    sim = np.random.default_rng(1).random((5, 12, 12))
-    np.testing.assert_array_equal(generalized_mutual_matches(sim, 1), mutual_matches(sim))
-
-
 def test_gmm_finds_a_pair_that_mutual_misses():
     # row 0's nearest is column 0, but column 0's nearest is row 1; row 0 is column 0's second
     sim = np.array([[[0.9, 0.1, 0.0], [0.95, 0.2, 0.1], [0.3, 0.2, 0.8]]])
-    assert not mutual_matches(sim)[0, 0, 0]
+    assert not generalized_mutual_matches(sim, 1)[0, 0, 0]
     assert generalized_mutual_matches(sim, 3)[0, 0, 0]
 
 

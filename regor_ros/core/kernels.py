@@ -20,18 +20,25 @@ numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 
 @njit(inline="always")
-def _distance(points, i, j):
-    """|p_i - p_j|, summed x, y, z in that order (as scipy's cdist does)."""
-    dx = points[i, 0] - points[j, 0]
-    dy = points[i, 1] - points[j, 1]
-    dz = points[i, 2] - points[j, 2]
+def _distance(planes, i, j):
+    """|p_i - p_j| of points given as x, y, z rows (3, n): summed x, y, z in that order (as
+    scipy's cdist does), and contiguous along j, so loops over j run in SIMD lanes."""
+    dx = planes[0, i] - planes[0, j]
+    dy = planes[1, i] - planes[1, j]
+    dz = planes[2, i] - planes[2, j]
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @njit(inline="always")
 def _residual(source, target, i, j):
-    """The length residual of correspondences i and j: ||a_i - a_j| - |b_i - b_j||."""
+    """The length residual of correspondences i and j: ||a_i - a_j| - |b_i - b_j|| (x, y, z rows)."""
     return abs(_distance(source, i, j) - _distance(target, i, j))
+
+
+@njit(inline="always")
+def _rows(points):
+    """(n, 3) points as contiguous x, y, z rows (3, n)."""
+    return np.ascontiguousarray(points.T)
 
 
 @njit(inline="always")
@@ -68,8 +75,15 @@ def _common(bits, i, j):
 
 
 @njit(inline="always")
-def _set_bit(bits, i, j):
-    bits[i, j // WORD] |= np.uint64(1) << np.uint64(j % WORD)
+def _pack_below(values, limit, bits, i):
+    """Row i of the packed boolean matrix ``bits`` set to ``values`` < ``limit``, a word at a time."""
+    n = len(values)
+    for w in range(bits.shape[1]):
+        word = np.uint64(0)
+        for b in range(min(WORD, n - w * WORD)):
+            if values[w * WORD + b] < limit:
+                word |= np.uint64(1) << np.uint64(b)
+        bits[i, w] = word
 
 
 @njit(parallel=True, **JIT)
@@ -86,17 +100,20 @@ def compatibility_matrices(source, target, threshold, heights, slack, use_height
     d = np.float32(threshold)
     half = np.float32(threshold / 2)
     d2 = np.float32(threshold ** 2)
+    source, target = _rows(source), _rows(target)
     for i in prange(n):
+        # the row's residuals first, then each matrix from them: every loop but the packing is SIMD
+        r = np.empty(n, dtype=np.float32)
         for j in range(n):
             distance = _distance(source, i, j)
-            r = np.float32(abs(distance - _distance(target, i, j)))
+            r[j] = np.float32(abs(distance - _distance(target, i, j)))
             if use_heights and not abs(heights[i] - heights[j]) <= threshold + slack * distance:
-                r = np.float32(np.inf)
-            hard[i, j] = r < d
-            if r < half:
-                _set_bit(tight, i, j)
-            value = np.float32(1.0) - (r * r) / d2
+                r[j] = np.float32(np.inf)
+        for j in range(n):
+            hard[i, j] = r[j] < d
+            value = np.float32(1.0) - (r[j] * r[j]) / d2
             soft[i, j] = value if value > 0 else np.float32(0.0)
+        _pack_below(r, half, tight, i)
     return soft, hard, tight
 
 
@@ -142,17 +159,64 @@ def second_order_top_k(tight, hard, rows, k):
     return out
 
 
+@njit(inline="always")
+def _top_k_into(values, k, out):
+    """The indices of the k largest ``values`` into ``out``, best first; ties go to the lower index."""
+    best = np.empty(k, dtype=values.dtype)
+    filled = 0
+    for j in range(len(values)):
+        v = values[j]
+        if filled == k and not v > best[k - 1]:
+            continue
+        p = min(filled, k - 1)
+        while p > 0 and v > best[p - 1]:
+            best[p], out[p] = best[p - 1], out[p - 1]
+            p -= 1
+        best[p], out[p] = v, j
+        filled = min(filled + 1, k)
+
+
+@njit(parallel=True, **JIT)
+def generalized_mutual_mask(similarity, k):
+    """Generalized mutual matching over batched (regions, rows, cols) similarities: (r, c) is kept
+    when c is r's best and r among c's k best, or r is c's best and c among r's k best. Ties go
+    to the lower index (a partition leaves them to its implementation)."""
+    regions, n_rows, n_cols = similarity.shape
+    k_row, k_col = min(k, n_cols), min(k, n_rows)
+    mask = np.zeros(similarity.shape, dtype=np.bool_)
+    for s in prange(regions):
+        row_top = np.empty((n_rows, k_row), dtype=np.int64)
+        col_top = np.empty((n_cols, k_col), dtype=np.int64)
+        for r in range(n_rows):
+            _top_k_into(similarity[s, r], k_row, row_top[r])
+        for c in range(n_cols):
+            _top_k_into(np.ascontiguousarray(similarity[s, :, c]), k_col, col_top[c])
+        for r in range(n_rows):
+            c = row_top[r, 0]
+            for m in range(k_col):
+                if col_top[c, m] == r:
+                    mask[s, r, c] = True
+        for c in range(n_cols):
+            r = col_top[c, 0]
+            for m in range(k_row):
+                if row_top[r, m] == c:
+                    mask[s, r, c] = True
+    return mask
+
+
 @njit(parallel=True, **JIT)
 def triangle_scores(source, target, threshold):
     """Row sums of the second-order compatibility (H H) * H of the hard compatibility
     H = (length residual < threshold, in float64): for each i, the pairs (j, l) with i, j, l
     mutually compatible, counted over j."""
     n = source.shape[0]
+    source, target = _rows(source), _rows(target)
     bits = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
     for i in prange(n):
+        r = np.empty(n)
         for j in range(n):
-            if _residual(source, target, i, j) < threshold:
-                _set_bit(bits, i, j)
+            r[j] = _residual(source, target, i, j)
+        _pack_below(r, threshold, bits, i)
     scores = np.zeros(n, dtype=np.int64)
     for i in prange(n):
         total = 0
@@ -166,18 +230,31 @@ def triangle_scores(source, target, threshold):
 @njit(parallel=True, **JIT)
 def landed_counts(moved, planes, threshold2):
     """For each pose h: how many source keypoints (moved[h], float32) land within the squared
-    ``threshold2`` of one of their K candidates (``planes``: x, y, z, (3, N, K) float32)."""
+    ``threshold2`` of one of their K candidates (``planes``: x, y, z, (3, N, K) float32). Every
+    candidate is tested (no early exit), so the loop over them runs in SIMD lanes."""
     poses, rows, k = moved.shape[0], planes.shape[1], planes.shape[2]
     counts = np.zeros(poses, dtype=np.int64)
     for h in prange(poses):
         total = 0
         for i in range(rows):
+            x, y, z = moved[h, i, 0], moved[h, i, 1], moved[h, i, 2]
+            xs, ys, zs = planes[0, i], planes[1, i], planes[2, i]
+            hits = 0
             for c in range(k):
-                if _to_candidate2(planes, i, c, moved[h, i]) <= threshold2:
-                    total += 1
-                    break
+                dx, dy, dz = xs[c] - x, ys[c] - y, zs[c] - z
+                hits += dx * dx + dy * dy + dz * dz <= threshold2
+            total += hits > 0
         counts[h] = total
     return counts
+
+
+@njit(fastmath={"nnan", "nsz"}, inline="always")
+def _smallest(values):
+    """The least of finite ``values``: exact in any order, so the reduction may run in SIMD lanes."""
+    least = np.inf
+    for v in values:
+        least = min(least, v)
+    return least
 
 
 @njit(parallel=True, **JIT)
@@ -191,15 +268,21 @@ def verified_candidates(moved, planes, feature_distance, near2, far2):
     best = np.zeros(rows, dtype=np.int64)
     residual = np.zeros(rows, dtype=np.float32)
     for i in prange(rows):
-        nearest = np.float32(np.inf)
-        lowest = np.inf
-        for c in range(k):
-            e2 = _to_candidate2(planes, i, c, moved[i])
-            nearest = min(nearest, e2)
-            cost = np.float64(feature_distance[i, c]) + (2.0 if e2 > far2 else 0.0)
-            if cost < lowest:
-                lowest, best[i], residual[i] = cost, c, e2
-        verified[i] = nearest <= near2
+        x, y, z = moved[i, 0], moved[i, 1], moved[i, 2]
+        xs, ys, zs = planes[0, i], planes[1, i], planes[2, i]
+        e2 = np.empty(k, dtype=np.float32)
+        cost = np.empty(k)
+        near = 0
+        for c in range(k):  # SIMD: no early exit, no running argmin
+            dx, dy, dz = xs[c] - x, ys[c] - y, zs[c] - z
+            e2[c] = dx * dx + dy * dy + dz * dz
+            near += e2[c] <= near2
+            cost[c] = np.float64(feature_distance[i, c]) + (2.0 if e2[c] > far2 else 0.0)
+        lowest = _smallest(cost)
+        c = 0
+        while c < k - 1 and cost[c] != lowest:
+            c += 1
+        verified[i], best[i], residual[i] = near > 0, c, e2[c]
     return verified, best, residual
 
 
@@ -208,13 +291,13 @@ def most_length_agreement(source, target, rows, threshold):
     """max over ``rows`` i of #{j : ||a_i - a_j| - |b_i - b_j|| < threshold}: FS-TCD's largest
     set of verified matches agreeing in length with one of them."""
     n = source.shape[0]
+    source, target = _rows(source), _rows(target)
     counts = np.zeros(len(rows), dtype=np.int64)
     for m in prange(len(rows)):
         i = rows[m]
         total = 0
         for j in range(n):
-            if _residual(source, target, i, j) < threshold:
-                total += 1
+            total += _residual(source, target, i, j) < threshold
         counts[m] = total
     return counts.max() if len(rows) else 0
 
@@ -271,6 +354,7 @@ def warm_up() -> None:
     _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
     second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
     triangle_scores(points, points, 0.1)
+    generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
     landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
     verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
                         np.float32(0.01), np.float32(0.02))

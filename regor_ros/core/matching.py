@@ -10,6 +10,7 @@ from typing import Optional
 
 import numpy as np
 
+from . import kernels
 from .features import PreparedCloud
 
 
@@ -52,29 +53,9 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
     return FeatureMatches(nearest, best_sim, flags, candidate_rows, cand, feature_distance(cand_sim))
 
 
-def _top_mask(similarity: np.ndarray, k: int, axis: int) -> np.ndarray:
-    """Boolean mask of the k largest entries along ``axis`` of a batched matrix."""
-    size = similarity.shape[axis]
-    k = min(k, size)
-    mask = np.zeros(similarity.shape, dtype=bool)
-    if k == size:
-        mask[...] = True
-        return mask
-    idx = np.argpartition(-similarity, k - 1, axis=axis)
-    idx = np.take(idx, np.arange(k), axis=axis)
-    np.put_along_axis(mask, idx, True, axis=axis)
-    return mask
-
-
-def mutual_matches(similarity: np.ndarray) -> np.ndarray:
-    """Mutual nearest neighbours of a (..., k, k) similarity matrix, as a boolean mask."""
-    return _top_mask(similarity, 1, -1) & _top_mask(similarity, 1, -2)
-
-
 def generalized_mutual_matches(similarity: np.ndarray, k: int = 3) -> np.ndarray:
     """Generalized mutual matching (GMM): keep (j, l) if l is j's nearest and j is among l's k
-    nearest, or j is l's nearest and l among j's k nearest. Mask over (..., rows, cols); it
-    contains the mutual matches and holds at most rows + cols pairs."""
-    row1, rowk = _top_mask(similarity, 1, -1), _top_mask(similarity, k, -1)
-    col1, colk = _top_mask(similarity, 1, -2), _top_mask(similarity, k, -2)
-    return (row1 & colk) | (rowk & col1)
+    nearest, or j is l's nearest and l among j's k nearest. Mask over (regions, rows, cols); it
+    contains the mutual matches (k = 1) and holds at most rows + cols pairs. Ties go to the lower
+    index."""
+    return kernels.generalized_mutual_mask(np.ascontiguousarray(similarity), int(k))
