@@ -16,7 +16,7 @@ setup(
         (f"share/{PACKAGE}/rviz", glob("rviz/*.rviz")),
         (f"share/{PACKAGE}/demo", glob("demo/*")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "numba", "open3d"],
+    install_requires=["setuptools", "numpy", "scipy", "numba", "threadpoolctl", "open3d"],
     zip_safe=True,
     maintainer="regor_ros developers",
     maintainer_email="regor_ros@example.com",

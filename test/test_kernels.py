@@ -110,3 +110,23 @@ def test_registrations_after_warm_up_compile_nothing(kitchen_pair):
     config = RegorConfig.preset("outdoor").replace({"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"})
     register(scan, prepare_cloud(cloud, config, "map"), config)
     assert _compiled() == compiled
+
+
+def _blas_threads():
+    """{library path: threads} of the BLAS libraries loaded."""
+    from threadpoolctl import threadpool_info
+    return {lib["filepath"]: lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"}
+
+
+def test_numpy_blas_runs_on_one_thread_during_registrations_and_is_restored():
+    import faiss  # noqa: F401  (its BLAS copy is loaded, as in any registration)
+    before = _blas_threads()
+    numpy_blas = [path for path in before if "faiss" not in path.lower()]
+    assert numpy_blas
+    with kernels.blas_on_one_thread():
+        with kernels.blas_on_one_thread():  # a second registration on another thread
+            pass
+        inside = _blas_threads()  # still limited: the first has not finished
+    assert all(inside[path] == 1 for path in numpy_blas)
+    assert all(inside[path] == before[path] for path in before if path not in numpy_blas)  # FAISS's own
+    assert _blas_threads() == before

@@ -9,14 +9,55 @@ node pays that when it starts, not on its first relocalization.
 """
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
+from functools import lru_cache
+
 import numba
 import numpy as np
 from numba import njit, prange
+from threadpoolctl import ThreadpoolController
 
 JIT = dict(cache=True, nogil=True)
 # OpenMP first: thread-safe (the node registers off its executor thread), and never the warning a
 # too-old TBB (some pip environments carry one) prints when tried first
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+
+@lru_cache(maxsize=1)
+def _numpy_blas() -> ThreadpoolController:
+    """The BLAS libraries loaded (numpy's, scipy's), except the copy FAISS carries: FAISS's
+    exact search sums in an order that depends on its thread count, and on one thread it was
+    slower (map queries 1.06 against 0.98 s)."""
+    blas = ThreadpoolController().select(user_api="blas")
+    return ThreadpoolController().select(
+        filepath=[lib.filepath for lib in blas.lib_controllers if "faiss" not in lib.filepath.lower()])
+
+
+_blas_lock = threading.Lock()
+_blas_users = 0
+_blas_limit = None
+
+
+@contextmanager
+def blas_on_one_thread():
+    """numpy's BLAS on one thread while registrations run (the first in limits, the last out
+    restores). After a call OpenBLAS keeps its worker threads spinning, waiting for the next; on
+    two cores they took a core from the compiled kernels and FAISS that came next (indoor pairs
+    0.44 against 0.39 s median, the same poses), and a registration's products are too small
+    to gain from a second thread."""
+    global _blas_users, _blas_limit
+    with _blas_lock:
+        if _blas_users == 0:
+            _blas_limit = _numpy_blas().limit(limits=1)
+        _blas_users += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_users -= 1
+            if _blas_users == 0:
+                _blas_limit.restore_original_limits()
 
 
 @njit(inline="always")

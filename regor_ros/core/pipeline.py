@@ -23,6 +23,7 @@ from .estimate import (
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
+from .kernels import blas_on_one_thread
 from .initial import initial_stage, led_by
 from .matching import match_features
 from .metrics import random_rigid_motion
@@ -190,6 +191,12 @@ def register(source: SourceInput, target: CloudInput, config: Optional[RegorConf
     far off that may be) limits the search to the target keypoints the source can overlap from
     there, and a pose outside it is not accepted.
     """
+    with blas_on_one_thread():
+        return _register(source, target, config, source_viewpoint, target_viewpoint, search_region)
+
+
+def _register(source, target, config, source_viewpoint, target_viewpoint, search_region) -> RegistrationResult:
+    """register(), with numpy's BLAS on one thread."""
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
     # prepared once: the target for every attempt, the source also for the reverse check
