@@ -23,8 +23,8 @@ from .estimate import (
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
-from .kernels import blas_on_one_thread
 from .initial import initial_stage, led_by
+from .kernels import blas_on_one_thread
 from .matching import match_features
 from .metrics import random_rigid_motion
 from .regenerate import regenerate
