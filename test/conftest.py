@@ -58,6 +58,15 @@ def load_map_query(sequence, query):
             np.loadtxt(folder / "queries" / query / "gt.txt"))
 
 
+def length_residual(source, target):
+    """||a_i - a_j| - |b_i - b_j|| for every pair of (..., n, 3) correspondences by numpy
+    broadcasting: the definition the compiled kernels are held to."""
+    def distances(points):
+        planes = np.moveaxis(points, -1, 0)
+        return np.sqrt(sum((x[..., :, None] - x[..., None, :]) ** 2 for x in planes))
+    return np.abs(distances(source) - distances(target))
+
+
 def random_motion(seed, max_translation=2.0):
     return random_rigid_motion(seed, max_translation)
 

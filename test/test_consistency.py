@@ -1,14 +1,14 @@
 import numpy as np
-from conftest import random_motion
+from conftest import length_residual, random_motion
 
 from regor_ros.core.consistency import (
     compatibility,
     leading_eigenvector,
-    length_residual,
     second_order_top_k,
     top_k_stable,
     top_second_order,
 )
+from regor_ros.core import kernels
 from regor_ros.core.geometry import transform_points
 
 
@@ -20,11 +20,14 @@ def clique_problem(seed=0, inliers=30, outliers=70):
     return src, tgt
 
 
-def test_length_residual_is_zero_for_a_rigid_motion_and_batched():
-    src, tgt = clique_problem(outliers=0)
-    assert length_residual(src, tgt).max() < 1e-9
-    batch = length_residual(np.stack([src, src]), np.stack([tgt, tgt]))
-    assert batch.shape == (2, 30, 30) and batch.max() < 1e-9
+def test_region_agreement_is_the_dense_definition_over_valid_slots():
+    src, tgt = clique_problem(inliers=40, outliers=80)
+    regions_src, regions_tgt = src.reshape(4, 30, 3), tgt.reshape(4, 30, 3)
+    valid = np.random.default_rng(2).random((4, 30)) < 0.8
+    agree = (length_residual(regions_src, regions_tgt) < 0.05) & valid[:, :, None] & valid[:, None, :]
+    counts = kernels.region_agreement(regions_src, regions_tgt, valid, 0.05)
+    np.testing.assert_array_equal(counts, agree.sum(axis=2))
+    assert counts[0][valid[0]].min() >= valid[0].sum() - 1  # region 0 is all inliers: they agree
 
 
 def test_second_order_scores_put_the_inlier_clique_above_outliers():

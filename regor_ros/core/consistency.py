@@ -13,19 +13,6 @@ import numpy as np
 from . import kernels
 
 
-def pairwise_distances(points: np.ndarray) -> np.ndarray:
-    """Euclidean distance matrices of batched (..., n, 3) points by direct differences (the Gram
-    trick loses centimetres on raw LiDAR coordinates)."""
-    planes = np.moveaxis(points, -1, 0)
-    return np.sqrt(sum((x[..., :, None] - x[..., None, :]) ** 2 for x in planes))
-
-
-def length_residual(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """|(|a_i - a_j|) - (|b_i - b_j|)| for every pair of correspondences, batched over leading
-    axes (the regeneration's small regions; the consensus steps' n x n loops are compiled)."""
-    return np.abs(pairwise_distances(source) - pairwise_distances(target))
-
-
 def _points(points: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(points, dtype=np.float64)
 

@@ -269,6 +269,24 @@ def triangle_scores(source, target, threshold):
 
 
 @njit(parallel=True, **JIT)
+def region_agreement(source, target, valid, threshold):
+    """For each valid slot j of each region (``source``, ``target``: (regions, slots, 3) matched
+    points; ``valid``: (regions, slots)): how many valid slots l of its region agree with it in
+    length, ||a_j - a_l| - |b_j - b_l|| < ``threshold`` (l = j included). 0 for invalid slots."""
+    regions, slots = valid.shape
+    counts = np.zeros((regions, slots), dtype=np.int64)
+    for g in prange(regions):
+        a, b = _rows(source[g]), _rows(target[g])
+        for j in range(slots):
+            if valid[g, j]:
+                total = 0
+                for m in range(slots):
+                    total += valid[g, m] and _residual(a, b, j, m) < threshold
+                counts[g, j] = total
+    return counts
+
+
+@njit(parallel=True, **JIT)
 def landed_counts(moved, planes, threshold2):
     """For each pose h: how many source keypoints (moved[h], float32) land within the squared
     ``threshold2`` of one of their K candidates (``planes``: x, y, z, (3, N, K) float32). Every
@@ -400,5 +418,6 @@ def warm_up() -> None:
     verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
                         np.float32(0.01), np.float32(0.02))
     most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
+    region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
     spherical_bins(points, 0.01, 8, 1e-3)
     free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))

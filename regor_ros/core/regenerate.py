@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import RegenerationConfig
-from .consistency import length_residual, top_second_order
+from . import kernels
+from .consistency import top_second_order
 from .features import PreparedCloud
 from .matching import generalized_mutual_matches
 
@@ -57,8 +58,8 @@ def three_point_filter(seed_src: np.ndarray, seed_tgt: np.ndarray, m: LocalMatch
     q = target.points[np.maximum(m.target_index, 0)]
     centre = np.abs(np.linalg.norm(p - seed_src[:, None], axis=2)
                     - np.linalg.norm(q - seed_tgt[:, None], axis=2)) < half
-    pair = (length_residual(p, q) < half) & m.valid[:, :, None] & m.valid[:, None, :]
-    keep = m.valid & (centre | (pair.sum(axis=2) >= cfg.point_support_ratio * m.count[:, None]))
+    support = kernels.region_agreement(p, q, m.valid, half)
+    keep = m.valid & (centre | (support >= cfg.point_support_ratio * m.count[:, None]))
     kept = keep.sum(axis=1)
     if cfg.reproduce_ctc_padding_bug:
         # the authors' code pads to 2k slots pointing at keypoint 0 and counts their centre test
