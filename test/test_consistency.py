@@ -1,6 +1,7 @@
 import numpy as np
 from conftest import length_residual, random_motion
 
+from regor_ros.core import kernels
 from regor_ros.core.consistency import (
     compatibility,
     leading_eigenvector,
@@ -8,7 +9,6 @@ from regor_ros.core.consistency import (
     top_k_stable,
     top_second_order,
 )
-from regor_ros.core import kernels
 from regor_ros.core.geometry import transform_points
 
 

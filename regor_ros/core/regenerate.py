@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import RegenerationConfig
 from . import kernels
+from .config import RegenerationConfig
 from .consistency import top_second_order
 from .features import PreparedCloud
 from .matching import generalized_mutual_matches
