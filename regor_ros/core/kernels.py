@@ -5,7 +5,9 @@ Each kernel gives exactly what the numpy expression it replaced gave (the tests 
 those expressions): the same float32 rounding of the length residual, integer counts, ties broken
 by index. Rows are independent, so the result does not depend on the number of threads.
 Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
-node pays that when it starts, not on its first relocalization.
+node pays that when it starts, not on its first relocalization. The threads they run on are
+this module's too: OpenMP first, and numpy's BLAS kept off the cores while a registration runs
+(``blas_on_one_thread``).
 """
 from __future__ import annotations
 
@@ -80,16 +82,6 @@ def _residual(source, target, i, j):
 def _rows(points):
     """(n, 3) points as contiguous x, y, z rows (3, n)."""
     return np.ascontiguousarray(points.T)
-
-
-@njit(inline="always")
-def _to_candidate2(planes, i, c, point):
-    """Squared distance from ``point`` (x, y, z) to keypoint i's candidate c (``planes``: x, y, z
-    (3, N, K)), summed x, y, z in that order."""
-    dx = planes[0, i, c] - point[0]
-    dy = planes[1, i, c] - point[1]
-    dz = planes[2, i, c] - point[2]
-    return dx * dx + dy * dy + dz * dz
 
 
 WORD = 64  # bits of one word of a packed boolean row
