@@ -32,8 +32,7 @@ def _numpy_blas() -> ThreadpoolController:
     exact search sums in an order that depends on its thread count, and on one thread it was
     slower (map queries 1.06 against 0.98 s)."""
     blas = ThreadpoolController().select(user_api="blas")
-    return ThreadpoolController().select(
-        filepath=[lib.filepath for lib in blas.lib_controllers if "faiss" not in lib.filepath.lower()])
+    return blas.select(filepath=[lib.filepath for lib in blas.lib_controllers if "faiss" not in lib.filepath.lower()])
 
 
 _blas_lock = threading.Lock()
@@ -82,6 +81,14 @@ def _residual(source, target, i, j):
 def _rows(points):
     """(n, 3) points as contiguous x, y, z rows (3, n)."""
     return np.ascontiguousarray(points.T)
+
+
+@njit(inline="always")
+def _squared_distance(xs, ys, zs, c, x, y, z):
+    """|q_c - p|^2 of candidate c (coordinates in the rows ``xs``, ``ys``, ``zs``) from the point
+    (x, y, z), summed x, y, z in that order."""
+    dx, dy, dz = xs[c] - x, ys[c] - y, zs[c] - z
+    return dx * dx + dy * dy + dz * dz
 
 
 WORD = 64  # bits of one word of a packed boolean row
@@ -222,8 +229,9 @@ def generalized_mutual_mask(similarity, k):
         col_top = np.empty((n_cols, k_col), dtype=np.int64)
         for r in range(n_rows):
             _top_k_into(similarity[s, r], k_row, row_top[r])
+        columns = np.ascontiguousarray(similarity[s].T)
         for c in range(n_cols):
-            _top_k_into(np.ascontiguousarray(similarity[s, :, c]), k_col, col_top[c])
+            _top_k_into(columns[c], k_col, col_top[c])
         for r in range(n_rows):
             c = row_top[r, 0]
             for m in range(k_col):
@@ -292,8 +300,7 @@ def landed_counts(moved, planes, threshold2):
             xs, ys, zs = planes[0, i], planes[1, i], planes[2, i]
             hits = 0
             for c in range(k):
-                dx, dy, dz = xs[c] - x, ys[c] - y, zs[c] - z
-                hits += dx * dx + dy * dy + dz * dz <= threshold2
+                hits += _squared_distance(xs, ys, zs, c, x, y, z) <= threshold2
             total += hits > 0
         counts[h] = total
     return counts
@@ -325,8 +332,7 @@ def verified_candidates(moved, planes, feature_distance, near2, far2):
         cost = np.empty(k)
         near = 0
         for c in range(k):  # SIMD: no early exit, no running argmin
-            dx, dy, dz = xs[c] - x, ys[c] - y, zs[c] - z
-            e2[c] = dx * dx + dy * dy + dz * dz
+            e2[c] = _squared_distance(xs, ys, zs, c, x, y, z)
             near += e2[c] <= near2
             cost[c] = np.float64(feature_distance[i, c]) + (2.0 if e2[c] > far2 else 0.0)
         lowest = _smallest(cost)
