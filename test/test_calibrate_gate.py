@@ -1,7 +1,7 @@
 """The gate calibration: thresholds that publish no wrong pose, chosen without the held-out place."""
 import csv
 
-from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score
+from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score, stable_fit
 
 
 def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
@@ -76,3 +76,16 @@ def test_among_equally_good_thresholds_the_fit_takes_the_strictest():
     assert thresholds[:3] == (0.03, 60, 0.5)
     assert score(samples, thresholds)[1:3] == (2, 0)
     assert score([sample("c", False, 45, 0.0)], thresholds)[2] == 0
+
+
+def test_a_relaxation_that_only_one_place_supports_is_not_taken():
+    """Place c's correct pose needs free space 0.03, and no training place put a wrong pose between
+    0.02 and 0.05: the single fit goes to 0.03, the stable fit stays at 0.02 (with c left out the
+    room is not needed), so the wrong pose of an unseen place at 0.03 is not published."""
+    samples = [sample("a", True, 40, 0.01), sample("b", True, 40, 0.01), sample("c", True, 40, 0.03),
+               sample("d", False, 40, 0.05)]
+    assert fit(samples, "indoor")[0] == 0.03
+    thresholds = stable_fit(samples, "indoor")
+    assert thresholds[0] == 0.02 and thresholds[1] >= fit(samples, "indoor")[1]
+    assert score(samples, thresholds)[1:3] == (2, 0)
+    assert score([sample("e", False, 40, 0.03)], thresholds)[2] == 0
