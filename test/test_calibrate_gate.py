@@ -56,6 +56,7 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
     assert "| 3dmatch_kitchen |" in report and "| 3dmatch_hotel |" in report
     assert "fitted on all of it" in report and "the preset as shipped" in report
     assert "Wrong poses published with their place held out" in report
+    assert "| indoor | min_feature_inliers |" in report   # how far each threshold moves between folds
 
 
 def test_the_alone_fit_does_not_lean_on_free_space():

@@ -30,7 +30,8 @@ table: the fit on everything (an in-sample figure), and the preset's own values 
 (chosen with this report in hand, not by it). The headline is
 repeated for a fit that cannot lean on two thresholds at once: the feature counts alone stop
 every wrong pose the unfitted checks let through (``fit_alone``), and for the single fit without
-the places left out inside it (``fit``). A second table
+the places left out inside it (``fit``), with how far each threshold moves between folds under
+each rule. A second table
 reports the held-out runs again with the target's viewpoint dropped (a scan against a map) and
 with both dropped (map against map).
 """
@@ -345,6 +346,23 @@ def wrong_held_out(folded: Dict[str, list]) -> str:
     return "\n".join(lines) if len(lines) > 2 else "None."
 
 
+THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
+
+
+def fold_spread(single: Dict[str, list], stable: Dict[str, list]) -> str:
+    """Per kind and threshold, the range of values the folds fitted, by each rule: a threshold
+    whose fitted value moves with the place left out rests on that place (a weak check)."""
+    def span(kind_folds, i) -> str:
+        values = sorted({float(thresholds[i]) for _, _, thresholds in kind_folds})
+        text = [f"{v:g}" for v in (values[0], values[-1])]
+        return text[0] if len(values) == 1 else f"{text[0]}-{text[1]}"
+    lines = ["| kind | threshold | single fit, over the folds | stable fit, over the folds |", "|---|---|---|---|"]
+    for kind in single:
+        for i, name in enumerate(THRESHOLD_NAMES):
+            lines.append(f"| {kind} | {name} | {span(single[kind], i)} | {span(stable[kind], i)} |")
+    return "\n".join(lines)
+
+
 def report(samples: List[Sample]) -> str:
     folded, inside = folds(samples), in_sample(samples)
     alone = headline(samples, folds(samples, fit_alone), in_sample(samples, fit_alone))
@@ -358,6 +376,8 @@ def report(samples: List[Sample]) -> str:
              "The same with the thresholds where one fit on all the training places puts them (``fit``, the "
              "rule before ``stable_fit``: up to the edge of the wrong poses those places produced):", "", edge, "",
              "Wrong poses that fit published with their place held out:", "", wrong_held_out(edge_folds), "",
+             "How far each fitted threshold moves with the place left out (10 in max_ambiguity: off):", "",
+             fold_spread(edge_folds, folded), "",
              "## Per place", ""]
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
