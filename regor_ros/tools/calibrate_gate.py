@@ -219,9 +219,9 @@ def strictest_features(runs: "Runs", safe: List[int], thresholds) -> int:
 
 def stable_fit(samples: List[Sample], kind: str, fitter=fit) -> Thresholds:
     """Each threshold at its strictest among ``fitter``'s fits on all ``samples`` and on the
-    samples with each of their places left out in turn: a threshold is relaxed only as far as
-    every place but one supports, so a gain that rests on one place's runs (a fit's edge next to
-    wrong poses no training place happened to produce) is not taken. The leave-one-place-out
+    samples with each of their places left out in turn: a threshold is relaxed only as far as the
+    fit still goes with any one place left out, so a gain that rests on one place's runs (a fit's
+    edge next to wrong poses no training place happened to produce) is not taken. The leave-one-place-out
     inside the fit that the report runs around it. A place whose runs hold every wrong pose leaves
     nothing to fit on without it, and no vote."""
     rests = [[s for s in samples if not any(same_place(p, family) for p in s.places)]
