@@ -83,6 +83,10 @@ class Sample:
         """Passes every check that is not fitted: the structural ones, chance, opposite sides."""
         return self.structural and (self.opposite is None or self.opposite <= self.max_opposite)
 
+    def involves(self, family: str) -> bool:
+        """The run registers a cloud of that place (either cloud, for a cross-place run)."""
+        return any(same_place(p, family) for p in self.places)
+
     def blinded(self, keep_source: bool) -> "Sample":
         """This run as if the target's viewpoint (and the source's too, unless ``keep_source``)
         were unknown: those free-space figures and the opposite-sides figure (it needs both) are
@@ -134,6 +138,7 @@ def load_samples(paths: List[Path], method: str) -> List[Sample]:
 
 
 Thresholds = Tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
+THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
 
 
 class Runs:
@@ -224,8 +229,7 @@ def stable_fit(samples: List[Sample], kind: str, fitter=fit) -> Thresholds:
     edge next to wrong poses no training place happened to produce) is not taken. The leave-one-place-out
     inside the fit that the report runs around it. A place whose runs hold every wrong pose leaves
     nothing to fit on without it, and no vote."""
-    rests = [[s for s in samples if not any(same_place(p, family) for p in s.places)]
-             for family in families(samples)]
+    rests = [[s for s in samples if not s.involves(family)] for family in families(samples)]
     fits = [fitter(samples, kind)] + [fitter(rest, kind) for rest in rests if not all(s.correct for s in rest)]
     violation, min_features, max_ambiguity, min_partial = zip(*fits)
     return min(violation), max(min_features), min(max_ambiguity), max(min_partial)
@@ -296,8 +300,8 @@ def folds(samples: List[Sample], fitter=stable_fit) -> Dict[str, list]:
         group = [s for s in samples if s.kind == kind]
         out[kind] = []
         for family in families(group):
-            held = [s for s in group if any(same_place(p, family) for p in s.places)]
-            rest = [s for s in group if not any(same_place(p, family) for p in s.places)]
+            held = [s for s in group if s.involves(family)]
+            rest = [s for s in group if not s.involves(family)]
             out[kind].append((family, held, fitter(rest, kind)))
     return out
 
@@ -346,9 +350,6 @@ def wrong_held_out(folded: Dict[str, list]) -> str:
     return "\n".join(lines) if len(lines) > 2 else "None."
 
 
-THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
-
-
 def fold_spread(single: Dict[str, list], stable: Dict[str, list]) -> str:
     """Per kind and threshold, the range of values the folds fitted, by each rule: a threshold
     whose fitted value moves with the place left out rests on that place (a weak check)."""
@@ -381,9 +382,8 @@ def report(samples: List[Sample]) -> str:
              "## Per place", ""]
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
-        table = [f"### {kind}", "", "| held out | max_free_space_violation | min_feature_inliers | "
-                 "max_ambiguity | min_feature_inliers_partial | held-out runs | correct | published correct | "
-                 "published WRONG |", "|---|---|---|---|---|---|---|---|---|"]
+        table = [f"### {kind}", "", f"| held out | {' | '.join(THRESHOLD_NAMES)} | held-out runs | correct | "
+                 "published correct | published WRONG |", "|---|---|---|---|---|---|---|---|---|"]
         blind = ["", f"{kind}, the same held-out runs with viewpoints dropped (the partial threshold applies):", "",
                  "| held out | min_feature_inliers_partial | runs | correct | target's dropped (scan to map): "
                  "published correct / WRONG | both dropped (map to map): published correct / WRONG |",
