@@ -1,9 +1,12 @@
-"""Compiled inner loops of the consensus steps (numba), where numpy did the arithmetic in a wider
-form than the method needs.
+"""Compiled inner loops of the consensus steps and of the map's feature search (numba), where
+numpy did the arithmetic in a wider form than the method needs, or FAISS read memory in an
+order that made it wait.
 
-Each kernel gives exactly what the numpy expression it replaced gave (the tests hold them to
-those expressions): the same float32 rounding of the length residual, integer counts, ties broken
-by index. Rows are independent, so the result does not depend on the number of threads.
+Each consensus kernel gives exactly what the numpy expression it replaced gave (the tests hold
+them to those expressions): the same float32 rounding of the length residual, integer counts, ties
+broken by index. The map's feature search gives the similarities of the numpy matrix product it
+replaced; FAISS's query-by-query scan sums in another order (the last bit may differ). Nothing
+depends on the number of threads.
 Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
 node pays that when it starts, not on its first relocalization. The threads they run on are
 this module's too: OpenMP first, and numpy's BLAS kept off the cores while a registration runs
@@ -404,6 +407,118 @@ def free_space_classes(points, viewpoint, free_depth, step, min_range, margin, m
     return seen, inside
 
 
+# --- the inverted file's by-cell scan (feature_index.CellTable) ---
+
+_LOW = np.uint64(0xFFFFFFFF)
+_SIGN = np.uint32(0x80000000)
+_EMPTY = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+@njit
+def _rank_key(similarity, position):
+    """One unsigned integer that orders (similarity, position) as a top-k list does: smaller
+    is better, more similar first, ties to the lower position (float32 bits made monotone)."""
+    bits = np.float32(similarity).view(np.uint32)
+    ascending = np.uint32(~bits) if bits & _SIGN else np.uint32(bits | _SIGN)
+    return (np.uint64(np.uint32(~ascending)) << np.uint64(32)) | np.uint64(position)
+
+
+@njit
+def _similarity_of(key):
+    """The similarity a key ranks; -inf for an empty slot."""
+    if key == _EMPTY:
+        return np.float32(-np.inf)
+    ascending = np.uint32(~np.uint32(key >> np.uint64(32)))
+    bits = ascending & np.uint32(~_SIGN) if ascending & _SIGN else ~ascending
+    return np.uint32(bits).view(np.float32)
+
+
+@njit
+def _position_of(key):
+    """The position a key ranks; -1 for an empty slot."""
+    return np.int64(-1) if key == _EMPTY else np.int64(key & _LOW)
+
+
+@njit
+def _replace_worst(heap, key):
+    """Put ``key`` in place of the worst (largest) key of a max-heap of keys."""
+    k = len(heap)
+    i = 0
+    while True:
+        child = 2 * i + 1
+        if child >= k:
+            break
+        if child + 1 < k and heap[child + 1] > heap[child]:
+            child += 1
+        if heap[child] <= key:
+            break
+        heap[i] = heap[child]
+        i = child
+    heap[i] = key
+
+
+@njit(parallel=True, **JIT)
+def cell_top_k(queries, probed, table, bounds, k, chunks):
+    """The k most similar table rows of each query among its probed cells: (positions (Q, k),
+    -1 where fewer were found; similarities (Q, k), -inf there), most similar first, ties to the
+    lower position. ``table`` (M, D) holds the features cell by cell (cell c in rows
+    bounds[c]:bounds[c + 1]); ``probed`` (Q, P) the cells each query scans.
+
+    The loop runs by cell: each cell's rows are read once, in one matrix product (BLAS) with all
+    the queries that probe it, where a query-by-query scan streams every probed cell from memory
+    per query. The cells are split into ``chunks`` runs of about equal work, each keeping its own
+    top k per query; the runs are merged in the list's order, so the result does not depend on
+    ``chunks`` (the thread count)."""
+    n_queries, n_probed = probed.shape
+    dims = queries.shape[1]
+    cells = len(bounds) - 1
+    # the (query, cell) pairs grouped by cell, queries ascending (a counting sort)
+    asking_start = np.zeros(cells + 1, np.int64)
+    for q in range(n_queries):
+        for p in range(n_probed):
+            asking_start[probed[q, p] + 1] += 1
+    asking_start = np.cumsum(asking_start)
+    filled = asking_start[:-1].copy()
+    asking = np.empty(n_queries * n_probed, np.int64)
+    for q in range(n_queries):
+        for p in range(n_probed):
+            c = probed[q, p]
+            asking[filled[c]] = q
+            filled[c] += 1
+    rows = bounds[1:] - bounds[:-1]
+    work = np.cumsum((asking_start[1:] - asking_start[:-1]) * (rows + 8))
+    first = np.full(chunks + 1, cells, np.int64)
+    first[0] = 0
+    if cells:
+        first[1:chunks] = np.searchsorted(work, work[-1] * np.arange(1, chunks) / chunks)
+    heaps = np.full((chunks, n_queries, k), _EMPTY, np.uint64)
+    for t in prange(chunks):
+        for c in range(first[t], first[t + 1]):
+            start, n, first_asking = bounds[c], rows[c], asking_start[c]
+            if n == 0 or asking_start[c + 1] == first_asking:
+                continue
+            block = np.empty((asking_start[c + 1] - first_asking, dims), np.float32)
+            for a in range(len(block)):
+                block[a] = queries[asking[first_asking + a]]
+            dots = np.dot(block, table[start:start + n].T)
+            for a in range(len(block)):
+                q, dot = asking[first_asking + a], dots[a]
+                heap = heaps[t, q]
+                worst = _similarity_of(heap[0])
+                for j in range(n):
+                    if dot[j] > worst:  # a run's positions ascend: an equal one is never better
+                        _replace_worst(heap, _rank_key(dot[j], start + j))
+                        worst = _similarity_of(heap[0])
+    out_position = np.empty((n_queries, k), np.int64)
+    out_similarity = np.empty((n_queries, k), np.float32)
+    for q in prange(n_queries):
+        best = np.sort(heaps[:, q].ravel())
+        for i in range(k):
+            out_similarity[q, i] = _similarity_of(best[i])
+            out_position[q, i] = _position_of(best[i])
+    return out_position, out_similarity
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel for the types the pipeline passes."""
     points = np.random.default_rng(0).random((8, 3))
@@ -419,3 +534,5 @@ def warm_up() -> None:
     region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
     spherical_bins(points, 0.01, 8, 1e-3)
     free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
+    cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
+               np.array([0, 3], np.int64), 2, 2)
