@@ -93,6 +93,48 @@ def test_spherical_bins_and_free_space_classes_are_the_numpy_expressions():
     assert not seen[~usable].any() and not inside[~usable].any()
 
 
+def _filtered_free_depth(index, ranges, width, rows, cols):
+    """The range image as RangeImage.build wrote it before the kernel: a minimum and a maximum
+    filter per footprint width (azimuth wraps, elevation takes the nearest row)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+    free = np.full((rows, cols), np.inf, dtype=np.float32)
+    covered = np.zeros((rows, cols), dtype=bool)
+    for w in np.unique(width):
+        nearest = np.full(rows * cols, np.inf, dtype=np.float32)
+        np.minimum.at(nearest, index[width == w], ranges[width == w])
+        nearest = nearest.reshape(rows, cols)
+        covered |= maximum_filter(np.isfinite(nearest), size=2 * w - 1, mode=("nearest", "wrap"))
+        free = np.minimum(free, minimum_filter(nearest, size=2 * w + 1, mode=("nearest", "wrap")))
+    free[~covered] = 0.0
+    return free
+
+
+def test_splatted_free_depth_is_the_filtered_image():
+    """Returns near the poles and across the azimuth seam, footprints of 1 to 8 bins."""
+    rng = np.random.default_rng(7)
+    rows, cols = 181, 360
+    n = 5000
+    index = np.concatenate([rng.integers(0, rows * cols, n - 40), rng.integers(0, 3 * cols, 20),
+                            (rng.integers(0, rows, 20) * cols + rng.choice([0, 1, cols - 2, cols - 1], 20))])
+    ranges = rng.uniform(0.5, 80, n).astype(np.float32)
+    width = rng.choice(np.arange(1, 9), n, p=[0.7, 0.1, 0.05, 0.05, 0.03, 0.03, 0.02, 0.02]).astype(np.int64)
+    np.testing.assert_array_equal(kernels.splatted_free_depth(index, ranges, width, rows, cols),
+                                  _filtered_free_depth(index, ranges, width, rows, cols))
+
+
+def test_within_any_is_the_ball_query():
+    """The points within each centre's radius, as the union of scipy's ball queries."""
+    from scipy.spatial import cKDTree
+    rng = np.random.default_rng(8)
+    points = rng.uniform(-50, 50, size=(30_000, 3))
+    centres, radii = rng.uniform(-40, 40, size=(3, 3)), np.array([5.0, 12.5, 20.0])
+    expected = np.zeros(len(points), bool)
+    for centre, radius in zip(centres, radii):
+        expected[cKDTree(points).query_ball_point(centre, radius)] = True
+    assert 100 < expected.sum() < len(points)
+    np.testing.assert_array_equal(kernels.within_any(points, centres, radii), expected)
+
+
 def _compiled() -> dict:
     return {name: len(kernel.signatures) for name, kernel in vars(kernels).items()
             if isinstance(kernel, numba.core.registry.CPUDispatcher)}

@@ -64,6 +64,12 @@ def blas_on_one_thread():
                 _blas_limit.restore_original_limits()
 
 
+def threads() -> int:
+    """The threads a registration's parallel work runs on (the kernels' own; ``regor-batch``
+    gives each worker its share)."""
+    return numba.get_num_threads()
+
+
 @njit(inline="always")
 def _distance(planes, i, j):
     """|p_i - p_j| of points given as x, y, z rows (3, n): summed x, y, z in that order (as
@@ -407,6 +413,49 @@ def free_space_classes(points, viewpoint, free_depth, step, min_range, margin, m
     return seen, inside
 
 
+
+@njit(**JIT)
+def splatted_free_depth(index, ranges, width, rows, cols):
+    """A range image's free depth (rows, cols) from its returns: each return (flat bin ``index``,
+    float32 ``ranges``) covers the bins fewer than ``width`` bins from its own, and is read as
+    free depth out to ``width`` bins (the nearest return counts); azimuth wraps around, elevation
+    stops at the poles. A bin no return covers is unknown (0). The same image as a minimum and a
+    maximum filter per footprint width, written once per return instead of once per width."""
+    free = np.full((rows, cols), np.inf, dtype=np.float32)
+    covered = np.zeros((rows, cols), dtype=np.bool_)
+    for i in range(len(index)):
+        row, col, w, depth = index[i] // cols, index[i] % cols, width[i], ranges[i]
+        for r in range(max(row - w, 0), min(row + w, rows - 1) + 1):
+            near_row = abs(r - row) < w
+            for step in range(-w, w + 1):
+                c = (col + step) % cols
+                if depth < free[r, c]:
+                    free[r, c] = depth
+                if near_row and abs(step) < w:
+                    covered[r, c] = True
+    for r in range(rows):
+        for c in range(cols):
+            if not covered[r, c]:
+                free[r, c] = 0.0
+    return free
+
+
+@njit(parallel=True, **JIT)
+def within_any(points, centres, radii):
+    """Mask of the points within ``radii[k]`` of some ``centres[k]`` (squared distances summed x,
+    y, z, as scipy's ball query): the part of a large cloud a sensor could have seen, without a
+    tree query's Python lists (a map's 100 k indices cost milliseconds to gather)."""
+    n = points.shape[0]
+    inside = np.zeros(n, dtype=np.bool_)
+    limits = radii * radii
+    for i in prange(n):
+        for k in range(len(centres)):
+            dx, dy, dz = points[i, 0] - centres[k, 0], points[i, 1] - centres[k, 1], points[i, 2] - centres[k, 2]
+            if dx * dx + dy * dy + dz * dz <= limits[k]:
+                inside[i] = True
+                break
+    return inside
+
 # --- the inverted file's by-cell scan (feature_index.CellTable) ---
 
 _LOW = np.uint64(0xFFFFFFFF)
@@ -534,5 +583,7 @@ def warm_up() -> None:
     region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
     spherical_bins(points, 0.01, 8, 1e-3)
     free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
+    splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
+    within_any(points, points[:2], np.ones(2))
     cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                np.array([0, 3], np.int64), 2, 2)

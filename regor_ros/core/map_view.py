@@ -19,6 +19,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import kernels
 from .visibility import RangeImage
 
 TRAJECTORY_VIEWS = 3      # nearest map sensor poses whose views are used for one candidate
@@ -50,7 +51,6 @@ class MapView:
     """What a sensor would see of the map from any position."""
 
     surface: np.ndarray      # (M, 3) map points at the keypoints' voxel size, ground kept
-    tree: cKDTree
     footprint: float         # their spacing [m]
     resolution_deg: float
     trajectory: np.ndarray   # (K, 3) the map's sensor positions, thinned; (0, 3) when unknown
@@ -61,14 +61,14 @@ class MapView:
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
               trajectory: Optional[np.ndarray] = None) -> "MapView":
         positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, VIEW_SPACING * voxel)
-        return cls(surface, cKDTree(surface), voxel, resolution_deg, positions,
+        return cls(surface, voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)
 
     def image(self, position: np.ndarray, reach: float) -> RangeImage:
         """The map seen from ``position`` out to ``reach``."""
-        near = self.tree.query_ball_point(position, reach)
-        return RangeImage.build(self.surface[np.asarray(near, dtype=np.int64)], position,
-                                self.resolution_deg, self.footprint, reach)
+        near = kernels.within_any(self.surface, np.asarray(position, dtype=np.float64).reshape(1, 3),
+                                  np.array([reach], dtype=np.float64))
+        return RangeImage.build(self.surface[near], position, self.resolution_deg, self.footprint, reach)
 
     def images(self, positions: np.ndarray, reach: float) -> List[RangeImage]:
         """The map seen from the candidate sensor positions (thinned as the trajectory is: scans

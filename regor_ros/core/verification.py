@@ -26,6 +26,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import kernels
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, poses_close
 from .evidence import Evidence
@@ -110,12 +111,9 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
     if seer.views:
         points = other.points
         if near_only:
-            to_other = np.linalg.inv(T_seer_other)
-            near = set()
-            for view in seer.views:
-                near.update(other.tree.query_ball_point(transform_points(to_other, view.viewpoint[None])[0],
-                                                        view.max_range + margin))
-            points = other.points[np.array(sorted(near), dtype=np.int64)]
+            reach = np.array([view.max_range for view in seer.views]) + margin
+            points = other.points[kernels.within_any(other.points, transform_points(
+                np.linalg.inv(T_seer_other), seer.viewpoints), reach)]
         points = transform_points(T_seer_other, points)
         seen, inside = seen_and_inside(seer.views, points, margin, ratio, widen(points))
         return (inside / seen if seen >= min_seen else None), seen, None

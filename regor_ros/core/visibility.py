@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-from scipy.ndimage import maximum_filter, minimum_filter
 
 from . import kernels
 from .geometry import parse_numbers
@@ -70,23 +69,13 @@ class RangeImage:
         near = ranges <= max_range
         ranges, index = ranges[near], index[near]
         # half-width in bins of each point's footprint; the 3x3 neighbourhood covers one bin
-        reach = np.zeros(len(ranges), dtype=np.int64)
+        width = np.ones(len(ranges), dtype=np.int64)
         if footprint > 0 and len(ranges):
             half = np.arctan(0.5 * footprint / np.maximum(ranges, MIN_RANGE))
-            reach = np.clip(np.ceil(half / np.radians(resolution_deg)).astype(np.int64), 1, MAX_SPLAT_BINS)
-        free = np.full((rows, cols), np.inf, dtype=np.float32)
-        covered = np.zeros((rows, cols), dtype=bool)
-        for width in np.unique(np.maximum(reach, 1)):
-            group = np.maximum(reach, 1) == width
-            nearest = np.full(rows * cols, np.inf, dtype=np.float32)
-            np.minimum.at(nearest, index[group], ranges[group].astype(np.float32))
-            nearest = nearest.reshape(rows, cols)
-            # a point covers its footprint's bins; its free depth is read one bin wider (depth
-            # edges: the nearer surface counts); azimuth wraps around, elevation does not
-            mode = ("nearest", "wrap")
-            covered |= maximum_filter(np.isfinite(nearest), size=2 * width - 1, mode=mode)
-            free = np.minimum(free, minimum_filter(nearest, size=2 * width + 1, mode=mode))
-        free[~covered] = 0.0  # a bin with no return is unknown, never free
+            width = np.clip(np.ceil(half / np.radians(resolution_deg)).astype(np.int64), 1, MAX_SPLAT_BINS)
+        # a point covers its footprint's bins; its free depth is read one bin wider (depth edges:
+        # the nearer surface counts); a bin with no return is unknown, never free
+        free = kernels.splatted_free_depth(index, ranges.astype(np.float32), width, rows, cols)
         return cls(viewpoint, free, float(resolution_deg),
                    float(ranges.max()) if len(ranges) else 0.0)
 

@@ -4,8 +4,8 @@ Preparing a 1.9 M-point map takes over 12 s here: normals, FPFH, and the k-means
 feature index. A cache file holds what preparation computed: keypoints, normals, features, the
 trained index (its cell centres and each keypoint's cell), and the map view's surface and
 trajectory. It is keyed by a digest of the map's content, its trajectory and every feature
-setting, so a changed file or setting never reuses it. The kd-trees are rebuilt on load (0.3 s for
-a 1.9 M-point map, the two big ones side by side), and the index's lists from the features.
+setting, so a changed file or setting never reuses it. The keypoints' kd-tree is rebuilt on load,
+beside the index's lists (filed again from the features).
 """
 from __future__ import annotations
 
@@ -75,16 +75,16 @@ def load_map(path: Path, key: str, config: FeatureConfig) -> PreparedCloud:
             if str(saved["key"]) != key:
                 raise CacheError(f"{path} is for another map file or other feature settings")
             points, surface, trajectory = saved["points"], saved["surface"], saved["trajectory"]
-            # the two big kd-trees build without the GIL: side by side, and beside the rest
-            with ThreadPoolExecutor(2) as pool:
-                trees = pool.submit(cKDTree, points), pool.submit(cKDTree, surface)
+            # the kd-tree builds without the GIL: beside the rest
+            with ThreadPoolExecutor(1) as pool:
+                tree = pool.submit(cKDTree, points)
                 features = saved["features"]
                 index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                                      config.search_probes_nearest,
                                      saved=(saved["index_centres"], saved["index_cells"]))
                 normals = saved["normals"]
-                point_tree, surface_tree = (tree.result() for tree in trees)
-            view = MapView(surface, surface_tree, float(saved["footprint"]), float(saved["resolution_deg"]),
+                point_tree = tree.result()
+            view = MapView(surface, float(saved["footprint"]), float(saved["resolution_deg"]),
                            trajectory, cKDTree(trajectory) if len(trajectory) else None)
             return PreparedCloud(points, normals, features, point_tree, index, config,
                                  int(saved["input_size"]), (), view)
