@@ -3,8 +3,7 @@ import numpy as np
 import pytest
 from conftest import load_map_query
 
-from regor_ros.core import RegorConfig, prepare_cloud
-from regor_ros.core import kernels
+from regor_ros.core import RegorConfig, kernels, prepare_cloud
 from regor_ros.core.feature_index import FeatureIndex
 
 
