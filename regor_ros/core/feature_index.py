@@ -38,8 +38,6 @@ TRAINING_PER_CELL = 64    # training sample per cell (all rows if fewer)
 KMEANS_SEED = 1234
 
 
-
-
 @contextmanager
 def _reservoir_top_k():
     """FAISS's flat search keeps each query's top k in a heap for k < 100 and in a reservoir
@@ -78,6 +76,7 @@ class CellTable:
         return cls(quantizer, ids, features[ids], bounds.astype(np.int64))
 
     def cell_of_each_row(self) -> np.ndarray:
+        """(N,) the cell each index row is filed in (what a cache keeps)."""
         cells = np.empty(len(self.ids), np.int32)
         cells[self.ids] = np.repeat(np.arange(self.cells, dtype=np.int32), np.diff(self.bounds))
         return cells

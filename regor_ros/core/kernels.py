@@ -1,6 +1,6 @@
-"""Compiled inner loops of the consensus steps and of the map's feature search (numba), where
-numpy did the arithmetic in a wider form than the method needs, or FAISS read memory in an
-order that made it wait.
+"""Compiled inner loops of the consensus steps, the free-space check and the map's feature
+search (numba), where numpy did the arithmetic in a wider form than the method needs, or FAISS
+read memory in an order that made it wait.
 
 Each consensus kernel gives exactly what the numpy expression it replaced gave (the tests hold
 them to those expressions): the same float32 rounding of the length residual, integer counts, ties
@@ -411,7 +411,6 @@ def free_space_classes(points, viewpoint, free_depth, step, min_range, margin, m
                 seen[i] = True
                 inside[i] = r < np.float64(depth - near - ratio * depth) - slack[i]
     return seen, inside
-
 
 
 @njit(**JIT)
