@@ -75,10 +75,13 @@ class CellTable:
         bounds = np.concatenate([[0], np.cumsum(np.bincount(cells, minlength=quantizer.ntotal))])
         return cls(quantizer, ids, features[ids], bounds.astype(np.int64))
 
+    def _cell_of_table_row(self) -> np.ndarray:
+        return np.repeat(np.arange(self.cells, dtype=np.int32), np.diff(self.bounds))
+
     def cell_of_each_row(self) -> np.ndarray:
         """(N,) the cell each index row is filed in (what a cache keeps)."""
         cells = np.empty(len(self.ids), np.int32)
-        cells[self.ids] = np.repeat(np.arange(self.cells, dtype=np.int32), np.diff(self.bounds))
+        cells[self.ids] = self._cell_of_table_row()
         return cells
 
     def subset(self, rows: np.ndarray) -> "CellTable":
@@ -86,16 +89,18 @@ class CellTable:
         member = np.zeros(len(self.ids), dtype=bool)
         member[rows] = True
         keep = member[self.ids]
-        counts = np.bincount(np.repeat(np.arange(self.cells), np.diff(self.bounds))[keep], minlength=self.cells)
+        counts = np.bincount(self._cell_of_table_row()[keep], minlength=self.cells)
         return CellTable(self.quantizer, np.searchsorted(rows, self.ids[keep]),
                          self.table[keep],
                          np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
     def search(self, queries: np.ndarray, k: int, probes: int) -> Tuple[np.ndarray, np.ndarray]:
         """The k most similar rows among each query's ``probes`` nearest cells: (ids (Q, k), -1
-        where fewer were found; similarities (Q, k), -inf there), most similar first."""
-        position, similarity = kernels.cell_top_k(queries, self.probed(queries, probes), self.table, self.bounds,
-                                                  k, kernels.threads())
+        where fewer were found; similarities (Q, k), -inf there), most similar first. The kernel's
+        products run on its threads, so BLAS is kept to one (a registration already does that)."""
+        with kernels.blas_on_one_thread():
+            position, similarity = kernels.cell_top_k(queries, self.probed(queries, probes), self.table,
+                                                      self.bounds, k, kernels.threads())
         return np.where(position >= 0, self.ids[np.maximum(position, 0)], -1), similarity
 
     def probed(self, queries: np.ndarray, probes: int) -> np.ndarray:

@@ -455,6 +455,7 @@ def within_any(points, centres, radii):
                 break
     return inside
 
+
 # --- the inverted file's by-cell scan (feature_index.CellTable) ---
 
 _LOW = np.uint64(0xFFFFFFFF)
@@ -568,22 +569,24 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
 
 
 def warm_up() -> None:
-    """Compile (or load from the disk cache) every kernel for the types the pipeline passes."""
-    points = np.random.default_rng(0).random((8, 3))
-    compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
-    _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
-    second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
-    triangle_scores(points, points, 0.1)
-    generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
-    landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
-    verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
-                        np.float32(0.01), np.float32(0.02))
-    most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
-    region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
-    spherical_bins(points, 0.01, 8, 1e-3)
-    free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
-    splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
-    within_any(points, points[:2], np.ones(2))
-    with blas_on_one_thread():   # as a registration calls it: its products must not start BLAS's threads
+    """Compile (or load from the disk cache) every kernel for the types the pipeline passes,
+    under the BLAS limit a registration runs them under (cell_top_k's products would otherwise
+    start scipy's OpenBLAS threads, which took the node's cores under load)."""
+    with blas_on_one_thread():
+        points = np.random.default_rng(0).random((8, 3))
+        compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
+        _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
+        second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
+        triangle_scores(points, points, 0.1)
+        generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
+        landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
+        verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
+                            np.float32(0.01), np.float32(0.02))
+        most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
+        region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
+        spherical_bins(points, 0.01, 8, 1e-3)
+        free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
+        splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
+        within_any(points, points[:2], np.ones(2))
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)
