@@ -1,10 +1,23 @@
 """The feature index: exact against a scan, an inverted file against a map, restricted views."""
+from contextlib import contextmanager
+
+import numba
 import numpy as np
 import pytest
 from conftest import load_map_query
 
 from regor_ros.core import RegorConfig, kernels, prepare_cloud
 from regor_ros.core.feature_index import FeatureIndex
+
+
+@contextmanager
+def numba_threads(count):
+    before = numba.get_num_threads()
+    numba.set_num_threads(count)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
 
 
 def unit_rows(rng, n):
@@ -21,6 +34,33 @@ def test_exact_index_ranks_like_a_full_sort():
     expected = np.argsort(-(queries @ data.T), axis=1)[:, :10]
     np.testing.assert_array_equal(found, expected)
     np.testing.assert_allclose(similarity, np.take_along_axis(queries @ data.T, expected, 1), rtol=1e-5)
+
+
+def test_the_exact_search_finds_nearest_candidates_and_back_in_one_pass_ties_to_the_lower_row():
+    """Small integer features (exact products, many ties, several tiles of queries and rows):
+    every query's nearest row, the K candidates of the chosen queries and each row's nearest
+    query are those of the full product, equal ones to the lower position, whatever the thread
+    count."""
+    rng = np.random.default_rng(5)
+    data = rng.integers(0, 3, (1500, 33)).astype(np.float32)
+    queries = rng.integers(0, 3, (700, 33)).astype(np.float32)
+    rows = np.sort(rng.choice(700, 300, replace=False))
+    product = queries @ data.T
+    index = FeatureIndex(data, exact_limit=1500, probes=1, nearest_probes=1)
+    answers = []
+    for threads in (1, kernels.threads()):
+        with numba_threads(threads):
+            answers.append(index.nearest_and_candidates(queries, rows, 20, back=True))
+    for a, b in zip(*answers):
+        np.testing.assert_array_equal(a, b)
+    nearest, similarity, candidates, candidate_similarity, back = answers[0]
+    np.testing.assert_array_equal(nearest, product.argmax(1))   # argmax: the first of equal ones
+    np.testing.assert_array_equal(similarity, product.max(1))
+    np.testing.assert_array_equal(back, product.argmax(0))
+    ranked = np.array([np.lexsort((np.arange(1500), -row))[:20] for row in product[rows]])
+    np.testing.assert_array_equal(candidates, ranked)
+    np.testing.assert_array_equal(candidate_similarity, np.take_along_axis(product[rows], ranked, 1))
+    assert (candidate_similarity[:, :-1] == candidate_similarity[:, 1:]).sum() > 1000   # ties tested
 
 
 def test_a_real_map_index_finds_what_the_exact_search_finds():
@@ -122,7 +162,7 @@ def test_the_by_cell_scan_breaks_ties_by_row_whatever_the_thread_count():
 
 
 def test_nearest_and_candidates_takes_a_candidate_row_s_first_only_in_an_inverted_file():
-    """Against a scan (exact) both searches run as before; against an inverted file a query with
+    """Against a scan (exact) every query gets its nearest row as a search for it alone does; against an inverted file a query with
     candidates takes its first as its nearest row, which is at least as similar as what the
     nearest-neighbour scan (fewer cells) finds, and the other queries get that scan's answer."""
     rng = np.random.default_rng(3)
@@ -130,7 +170,7 @@ def test_nearest_and_candidates_takes_a_candidate_row_s_first_only_in_an_inverte
     rows = np.sort(rng.choice(3000, 500, replace=False))
     for index in (FeatureIndex(data, exact_limit=30000, probes=32, nearest_probes=8),
                   FeatureIndex(data, exact_limit=1000, probes=32, nearest_probes=8)):
-        nearest, similarity, candidates, candidate_similarity = index.nearest_and_candidates(queries, rows, 10)
+        nearest, similarity, candidates, candidate_similarity, _ = index.nearest_and_candidates(queries, rows, 10)
         scanned, scanned_similarity = (a[:, 0] for a in index.search(queries, 1))
         np.testing.assert_array_equal((candidates, candidate_similarity), index.search(queries[rows], 10))
         others = np.setdiff1d(np.arange(3000), rows)

@@ -1,12 +1,12 @@
-"""Compiled inner loops of the consensus steps, the free-space check and the map's feature
-search (numba), where numpy did the arithmetic in a wider form than the method needs, or FAISS
-read memory in an order that made it wait.
+"""Compiled inner loops of the consensus steps, the free-space check and the feature search
+(numba), where numpy did the arithmetic in a wider form than the method needs, or FAISS read
+memory in an order that made it wait or searched the same products more than once.
 
 Each consensus kernel gives exactly what the numpy expression it replaced gave (the tests hold
 them to those expressions): the same float32 rounding of the length residual, integer counts, ties
-broken by index. The map's feature search gives the similarities of the numpy matrix product it
-replaced; FAISS's query-by-query scan sums in another order (the last bit may differ). Nothing
-depends on the number of threads.
+broken by index. The feature search gives the similarities of a numpy matrix product; FAISS,
+which it replaced, sums in another order (the last bit may differ). Nothing depends on the
+number of threads.
 Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
 node pays that when it starts, not on its first relocalization. The threads they run on are
 this module's too: OpenMP first, and numpy's BLAS kept off the cores while a registration runs
@@ -31,9 +31,9 @@ numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 @lru_cache(maxsize=1)
 def _numpy_blas() -> ThreadpoolController:
-    """The BLAS libraries loaded (numpy's, scipy's), except the copy FAISS carries: FAISS's
-    exact search sums in an order that depends on its thread count, and on one thread it was
-    slower (map queries 1.06 against 0.98 s)."""
+    """The BLAS libraries loaded (numpy's, scipy's), except the copy FAISS carries: FAISS finds
+    the cells a map query probes, and on one thread it was slower (map queries 1.06 against
+    0.98 s, measured when it also ran the exact search)."""
     blas = ThreadpoolController().select(user_api="blas")
     return blas.select(filepath=[lib.filepath for lib in blas.lib_controllers if "faiss" not in lib.filepath.lower()])
 
@@ -324,6 +324,15 @@ def _smallest(values):
     return least
 
 
+@njit(fastmath={"nnan", "nsz"}, inline="always")
+def _largest(values):
+    """The greatest of finite ``values``: exact in any order, so the reduction may run in SIMD lanes."""
+    greatest = -np.inf
+    for v in values:
+        greatest = max(greatest, v)
+    return greatest
+
+
 @njit(parallel=True, **JIT)
 def verified_candidates(moved, planes, feature_distance, near2, far2):
     """FS-TCD's re-matching of each source keypoint (``moved``, float32) among its K candidates
@@ -568,6 +577,74 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
     return out_position, out_similarity
 
 
+QUERY_TILE = 256   # queries per product tile of the exact search (a tile is one thread's work)
+ROW_TILE = 512    # table rows per product tile (a 128 x 1024 tile of products fits in L2)
+
+
+@njit(parallel=True, **JIT)
+def flat_search(queries, table, slot, k, columns):
+    """Exact search of every query against every table row, all from one pass over the
+    products: each query's most similar row (position (Q,), similarity (Q,)); the k most similar
+    of the queries with ``slot`` >= 0, in row ``slot`` of (S, k) positions and similarities,
+    most similar first; and with ``columns``, each table row's most similar query (position (M,),
+    similarity (M,); empty otherwise). Ties go to the lower position.
+
+    The products are computed tile by tile (BLAS), fixed tiles whatever the thread count, each
+    query tile on one thread; the rows' best queries are merged over the tiles in query order. So
+    the result does not depend on the thread count."""
+    n_queries, n_rows = len(queries), len(table)
+    n_slots = 0
+    for q in range(n_queries):
+        n_slots = max(n_slots, slot[q] + 1)
+    nearest = np.full(n_queries, -1, np.int64)
+    nearest_similarity = np.full(n_queries, -np.inf, np.float32)
+    heaps = np.full((n_slots, k), _EMPTY, np.uint64)
+    tiles = (n_queries + QUERY_TILE - 1) // QUERY_TILE
+    column_tiles = tiles if columns else 0
+    column_best = np.full((column_tiles, n_rows), -np.inf, np.float32)
+    column_query = np.full((column_tiles, n_rows), -1, np.int64)
+    for t in prange(tiles):
+        q0 = t * QUERY_TILE
+        q1 = min(q0 + QUERY_TILE, n_queries)
+        for r0 in range(0, n_rows, ROW_TILE):
+            r1 = min(r0 + ROW_TILE, n_rows)
+            dots = np.dot(queries[q0:q1], table[r0:r1].T)
+            for a in range(q1 - q0):
+                q, dot = q0 + a, dots[a]
+                top = _largest(dot)
+                if top > nearest_similarity[q]:  # an equal one in a later tile is never better
+                    at = 0
+                    while dot[at] != top:
+                        at += 1
+                    nearest_similarity[q], nearest[q] = top, r0 + at
+                if slot[q] >= 0:
+                    heap = heaps[slot[q]]
+                    worst = _similarity_of(heap[0])
+                    for j in range(r1 - r0):
+                        if dot[j] > worst:  # positions ascend: an equal one is never better
+                            _replace_worst(heap, _rank_key(dot[j], r0 + j))
+                            worst = _similarity_of(heap[0])
+                if columns:
+                    best_of_row, query_of_row = column_best[t, r0:r1], column_query[t, r0:r1]
+                    for j in range(r1 - r0):
+                        if dot[j] > best_of_row[j]:
+                            best_of_row[j], query_of_row[j] = dot[j], q
+    candidates = np.empty((n_slots, k), np.int64)
+    candidate_similarity = np.empty((n_slots, k), np.float32)
+    for s in prange(n_slots):
+        ranked = np.sort(heaps[s])
+        for i in range(k):
+            candidate_similarity[s, i] = _similarity_of(ranked[i])
+            candidates[s, i] = _position_of(ranked[i])
+    row_query = np.full(n_rows if columns else 0, -1, np.int64)
+    row_similarity = np.full(n_rows if columns else 0, -np.inf, np.float32)
+    for j in prange(len(row_query)):
+        for t in range(column_tiles):  # query tiles in order: an equal one later is never better
+            if column_best[t, j] > row_similarity[j]:
+                row_similarity[j], row_query[j] = column_best[t, j], column_query[t, j]
+    return nearest, nearest_similarity, candidates, candidate_similarity, row_query, row_similarity
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel for the types the pipeline passes,
     under the BLAS limit a registration runs them under (cell_top_k's products would otherwise
@@ -588,5 +665,6 @@ def warm_up() -> None:
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
         splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
         within_any(points, points[:2], np.ones(2))
+        flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)

@@ -36,10 +36,11 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
     """Nearest target feature per source feature (no mutual check, as the authors run it) and the
     ``candidates`` most similar targets of the source features in ``candidate_rows``, most
     similar first. Only the target's index is searched, so a map costs an index query per
-    source keypoint. With ``mutual``, the flags ask the source's index about the targets that
-    were hit (a second search: only for callers that use them)."""
-    nearest, best_sim, cand, cand_sim = target.index.nearest_and_candidates(
-        source.features, candidate_rows, candidates)
+    source keypoint. With ``mutual``, the flags say which source keypoints are also their
+    target's most similar source keypoint (an exact target index finds that in the same
+    products; an inverted file has the source's index searched for the targets hit)."""
+    nearest, best_sim, cand, cand_sim, back = target.index.nearest_and_candidates(
+        source.features, candidate_rows, candidates, back=mutual)
     nearest = np.maximum(nearest, 0)
     missing = cand < 0  # an inverted file found fewer than K: repeat the row's best instead
     if missing.any():
@@ -47,9 +48,11 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
         cand_sim = np.where(missing, cand_sim[:, :1], cand_sim)
     flags = None
     if mutual:
-        hit, slot = np.unique(nearest, return_inverse=True)
-        back, _ = source.index.search(target.features[hit], 1)
-        flags = back[slot, 0] == np.arange(len(nearest))
+        if back is None:  # an inverted file: the source's index answers for the targets hit
+            hit = np.unique(nearest)
+            back = np.zeros(len(target.features), dtype=np.int64)
+            back[hit] = source.index.search(target.features[hit], 1)[0][:, 0]
+        flags = back[nearest] == np.arange(len(nearest))
     return FeatureMatches(nearest, best_sim, flags, candidate_rows, cand, feature_distance(cand_sim))
 
 
