@@ -162,9 +162,10 @@ def test_the_by_cell_scan_breaks_ties_by_row_whatever_the_thread_count():
 
 
 def test_nearest_and_candidates_takes_a_candidate_row_s_first_only_in_an_inverted_file():
-    """Against a scan (exact) every query gets its nearest row as a search for it alone does; against an inverted file a query with
-    candidates takes its first as its nearest row, which is at least as similar as what the
-    nearest-neighbour scan (fewer cells) finds, and the other queries get that scan's answer."""
+    """Against a scan (exact) every query gets its nearest row as a search for it alone does;
+    against an inverted file a query with candidates takes its first as its nearest row, which is
+    at least as similar as what the nearest-neighbour scan (fewer cells) finds, and the other
+    queries get that scan's answer."""
     rng = np.random.default_rng(3)
     data, queries = unit_rows(rng, 30000), unit_rows(rng, 3000)
     rows = np.sort(rng.choice(3000, 500, replace=False))

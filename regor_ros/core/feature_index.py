@@ -5,10 +5,10 @@ thousand of them the K most similar; the outdoor preset also asks each target ke
 similar source keypoint (mutual matches). Against a scan-sized target an exact search is
 affordable and is what runs: one compiled pass over the products (``kernels.flat_search``)
 answers all three, where FAISS searched three times (a MulRan scan pair's 14.5 k keypoints:
-0.31 -> 0.21 s; an indoor pair 0.067 -> 0.047 s). Against a map it is not: the dense similarity grows with the map (98 s and
-11 GB against 634 k keypoints), so beyond ``exact_limit`` keypoints the features go into an
-inverted-file index (k-means cells, seeded, so the same map gives the same index) and a query
-scans only the cells nearest to it. Measured on the real scan-to-map data (MulRan, OS1-64, 74 k
+0.31 -> 0.21 s; an indoor pair 0.067 -> 0.047 s). Against a map it is not: the dense
+similarity grows with the map (98 s and 11 GB against 634 k keypoints), so beyond
+``exact_limit`` keypoints the features go into an inverted-file index (k-means cells, seeded,
+so the same map gives the same index) and a query scans only the cells nearest to it. Measured on the real scan-to-map data (MulRan, OS1-64, 74 k
 map keypoints), 128 cells return 99.8 % of the exact K = 100 candidates (by similarity) and 64
 cells 99.8 % of the exact nearest neighbours (99.97 % with 128, at twice the time).
 
