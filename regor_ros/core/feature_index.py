@@ -8,9 +8,10 @@ answers all three, where FAISS searched three times (a MulRan scan pair's 14.5 k
 0.31 -> 0.21 s; an indoor pair 0.067 -> 0.047 s). Against a map it is not: the dense
 similarity grows with the map (98 s and 11 GB against 634 k keypoints), so beyond
 ``exact_limit`` keypoints the features go into an inverted-file index (k-means cells, seeded,
-so the same map gives the same index) and a query scans only the cells nearest to it. Measured on the real scan-to-map data (MulRan, OS1-64, 74 k
-map keypoints), 128 cells return 99.8 % of the exact K = 100 candidates (by similarity) and 64
-cells 99.8 % of the exact nearest neighbours (99.97 % with 128, at twice the time).
+so the same map gives the same index) and a query scans only the cells nearest to it. Measured
+on the real scan-to-map data (MulRan, OS1-64, 74 k map keypoints), 128 cells return 99.8 % of
+the exact K = 100 candidates (by similarity) and 64 cells 99.8 % of the exact nearest
+neighbours (99.97 % with 128, at twice the time).
 
 A query scans its probed cells for its nearest neighbour (every scan keypoint, about 14 k) and
 for its K candidates (a few thousand of them). FAISS scans query by query, so each query streams
