@@ -202,7 +202,7 @@ class FeatureIndex:
         """``kernels.flat_search`` over this index's rows, BLAS kept to one thread (the kernel's
         products run on its own threads)."""
         with kernels.blas_on_one_thread():
-            return kernels.flat_search(queries, self._flat, slot, min(k, self.size), back)
+            return kernels.flat_search(queries, self._flat, slot, min(k, self.size), back, kernels.threads())
 
 
 def _trained(features: np.ndarray) -> CellTable:

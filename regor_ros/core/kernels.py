@@ -577,21 +577,22 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
     return out_position, out_similarity
 
 
-QUERY_TILE = 256   # queries per product tile of the exact search (a tile is one thread's work)
-ROW_TILE = 512    # table rows per product tile (a 128 x 1024 tile of products fits in L2)
+QUERY_TILE = 256  # queries per product tile of the exact search
+ROW_TILE = 512    # table rows per product tile: 256 x 512 float32 products, 0.5 MB, stay in L2
 
 
 @njit(parallel=True, **JIT)
-def flat_search(queries, table, slot, k, columns):
+def flat_search(queries, table, slot, k, columns, chunks):
     """Exact search of every query against every table row, all from one pass over the
     products: each query's most similar row (position (Q,), similarity (Q,)); the k most similar
     of the queries with ``slot`` >= 0, in row ``slot`` of (S, k) positions and similarities,
     most similar first; and with ``columns``, each table row's most similar query (position (M,),
     similarity (M,); empty otherwise). Ties go to the lower position.
 
-    The products are computed tile by tile (BLAS), fixed tiles whatever the thread count, each
-    query tile on one thread; the rows' best queries are merged over the tiles in query order. So
-    the result does not depend on the thread count."""
+    The products are computed tile by tile (BLAS), fixed tiles whatever the thread count. The
+    query tiles are split into ``chunks`` runs in query order, one per thread, each keeping its
+    own best query per row (memory: chunks x M, however many queries); the runs are merged in
+    query order, so the result does not depend on ``chunks``."""
     n_queries, n_rows = len(queries), len(table)
     n_slots = 0
     for q in range(n_queries):
@@ -600,35 +601,37 @@ def flat_search(queries, table, slot, k, columns):
     nearest_similarity = np.full(n_queries, -np.inf, np.float32)
     heaps = np.full((n_slots, k), _EMPTY, np.uint64)
     tiles = (n_queries + QUERY_TILE - 1) // QUERY_TILE
-    column_tiles = tiles if columns else 0
-    column_best = np.full((column_tiles, n_rows), -np.inf, np.float32)
-    column_query = np.full((column_tiles, n_rows), -1, np.int64)
-    for t in prange(tiles):
-        q0 = t * QUERY_TILE
-        q1 = min(q0 + QUERY_TILE, n_queries)
-        for r0 in range(0, n_rows, ROW_TILE):
-            r1 = min(r0 + ROW_TILE, n_rows)
-            dots = np.dot(queries[q0:q1], table[r0:r1].T)
-            for a in range(q1 - q0):
-                q, dot = q0 + a, dots[a]
-                top = _largest(dot)
-                if top > nearest_similarity[q]:  # an equal one in a later tile is never better
-                    at = 0
-                    while dot[at] != top:
-                        at += 1
-                    nearest_similarity[q], nearest[q] = top, r0 + at
-                if slot[q] >= 0:
-                    heap = heaps[slot[q]]
-                    worst = _similarity_of(heap[0])
-                    for j in range(r1 - r0):
-                        if dot[j] > worst:  # positions ascend: an equal one is never better
-                            _replace_worst(heap, _rank_key(dot[j], r0 + j))
-                            worst = _similarity_of(heap[0])
-                if columns:
-                    best_of_row, query_of_row = column_best[t, r0:r1], column_query[t, r0:r1]
-                    for j in range(r1 - r0):
-                        if dot[j] > best_of_row[j]:
-                            best_of_row[j], query_of_row[j] = dot[j], q
+    first_tile = (np.arange(chunks + 1) * tiles) // chunks
+    column_runs = chunks if columns else 0
+    column_best = np.full((column_runs, n_rows), -np.inf, np.float32)
+    column_query = np.full((column_runs, n_rows), -1, np.int64)
+    for c in prange(chunks):
+        for t in range(first_tile[c], first_tile[c + 1]):
+            q0 = t * QUERY_TILE
+            q1 = min(q0 + QUERY_TILE, n_queries)
+            for r0 in range(0, n_rows, ROW_TILE):
+                r1 = min(r0 + ROW_TILE, n_rows)
+                dots = np.dot(queries[q0:q1], table[r0:r1].T)
+                for a in range(q1 - q0):
+                    q, dot = q0 + a, dots[a]
+                    top = _largest(dot)
+                    if top > nearest_similarity[q]:  # an equal one in a later tile is never better
+                        at = 0
+                        while dot[at] != top:
+                            at += 1
+                        nearest_similarity[q], nearest[q] = top, r0 + at
+                    if slot[q] >= 0:
+                        heap = heaps[slot[q]]
+                        worst = _similarity_of(heap[0])
+                        for j in range(r1 - r0):
+                            if dot[j] > worst:  # positions ascend: an equal one is never better
+                                _replace_worst(heap, _rank_key(dot[j], r0 + j))
+                                worst = _similarity_of(heap[0])
+                    if columns:  # queries ascend within a run: an equal one later is never better
+                        best_of_row, query_of_row = column_best[c, r0:r1], column_query[c, r0:r1]
+                        for j in range(r1 - r0):
+                            if dot[j] > best_of_row[j]:
+                                best_of_row[j], query_of_row[j] = dot[j], q
     candidates = np.empty((n_slots, k), np.int64)
     candidate_similarity = np.empty((n_slots, k), np.float32)
     for s in prange(n_slots):
@@ -639,9 +642,9 @@ def flat_search(queries, table, slot, k, columns):
     row_query = np.full(n_rows if columns else 0, -1, np.int64)
     row_similarity = np.full(n_rows if columns else 0, -np.inf, np.float32)
     for j in prange(len(row_query)):
-        for t in range(column_tiles):  # query tiles in order: an equal one later is never better
-            if column_best[t, j] > row_similarity[j]:
-                row_similarity[j], row_query[j] = column_best[t, j], column_query[t, j]
+        for c in range(column_runs):  # runs in query order: an equal one later is never better
+            if column_best[c, j] > row_similarity[j]:
+                row_similarity[j], row_query[j] = column_best[c, j], column_query[c, j]
     return nearest, nearest_similarity, candidates, candidate_similarity, row_query, row_similarity
 
 
@@ -665,6 +668,6 @@ def warm_up() -> None:
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
         splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
         within_any(points, points[:2], np.ones(2))
-        flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True)
+        flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)
