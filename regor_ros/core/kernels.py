@@ -515,6 +515,26 @@ def _replace_worst(heap, key):
     heap[i] = key
 
 
+@njit(inline="always")
+def _offer(heap, dots, start):
+    """Offer a run of similarities (positions start, start + 1, ...) to a top-k heap of keys.
+    Positions ascend within a run and across the runs offered, so an equal one is never better."""
+    worst = _similarity_of(heap[0])
+    for j in range(len(dots)):
+        if dots[j] > worst:
+            _replace_worst(heap, _rank_key(dots[j], start + j))
+            worst = _similarity_of(heap[0])
+
+
+@njit(inline="always")
+def _unpack_best(keys, positions, similarities):
+    """The len(positions) best of ``keys`` (any order), most similar first, into the two rows."""
+    ranked = np.sort(keys)
+    for i in range(len(positions)):
+        similarities[i] = _similarity_of(ranked[i])
+        positions[i] = _position_of(ranked[i])
+
+
 @njit(parallel=True, **JIT)
 def cell_top_k(queries, probed, table, bounds, k, chunks):
     """The k most similar table rows of each query among its probed cells: (positions (Q, k),
@@ -560,20 +580,11 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
                 block[a] = queries[asking[first_asking + a]]
             dots = np.dot(block, table[start:start + n].T)
             for a in range(len(block)):
-                q, dot = asking[first_asking + a], dots[a]
-                heap = heaps[t, q]
-                worst = _similarity_of(heap[0])
-                for j in range(n):
-                    if dot[j] > worst:  # a run's positions ascend: an equal one is never better
-                        _replace_worst(heap, _rank_key(dot[j], start + j))
-                        worst = _similarity_of(heap[0])
+                _offer(heaps[t, asking[first_asking + a]], dots[a], start)
     out_position = np.empty((n_queries, k), np.int64)
     out_similarity = np.empty((n_queries, k), np.float32)
     for q in prange(n_queries):
-        best = np.sort(heaps[:, q].ravel())
-        for i in range(k):
-            out_similarity[q, i] = _similarity_of(best[i])
-            out_position[q, i] = _position_of(best[i])
+        _unpack_best(heaps[:, q].ravel(), out_position[q], out_similarity[q])
     return out_position, out_similarity
 
 
@@ -621,12 +632,7 @@ def flat_search(queries, table, slot, k, columns, chunks):
                             at += 1
                         nearest_similarity[q], nearest[q] = top, r0 + at
                     if slot[q] >= 0:
-                        heap = heaps[slot[q]]
-                        worst = _similarity_of(heap[0])
-                        for j in range(r1 - r0):
-                            if dot[j] > worst:  # positions ascend: an equal one is never better
-                                _replace_worst(heap, _rank_key(dot[j], r0 + j))
-                                worst = _similarity_of(heap[0])
+                        _offer(heaps[slot[q]], dot, r0)
                     if columns:  # queries ascend within a run: an equal one later is never better
                         best_of_row, query_of_row = column_best[c, r0:r1], column_query[c, r0:r1]
                         for j in range(r1 - r0):
@@ -635,10 +641,7 @@ def flat_search(queries, table, slot, k, columns, chunks):
     candidates = np.empty((n_slots, k), np.int64)
     candidate_similarity = np.empty((n_slots, k), np.float32)
     for s in prange(n_slots):
-        ranked = np.sort(heaps[s])
-        for i in range(k):
-            candidate_similarity[s, i] = _similarity_of(ranked[i])
-            candidates[s, i] = _position_of(ranked[i])
+        _unpack_best(heaps[s], candidates[s], candidate_similarity[s])
     row_query = np.full(n_rows if columns else 0, -1, np.int64)
     row_similarity = np.full(n_rows if columns else 0, -np.inf, np.float32)
     for j in prange(len(row_query)):
