@@ -1,8 +1,11 @@
 import numpy as np
-from conftest import moved_pair
+import pytest
+from conftest import DATA, moved_pair, require_shared_data
 
-from regor_ros.core import RegorConfig, prepare_cloud
-from regor_ros.core.features import largest_plane
+from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
+from regor_ros.core.features import largest_plane, toward_nearest
+from regor_ros.core.metrics import is_success
+from regor_ros.tools.map_benchmark import load_sequence
 
 
 def test_largest_plane_finds_the_ground_and_nothing_else():
@@ -56,3 +59,50 @@ def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
     whole = fpfh(cloud.points, cloud.normals, cfg.fpfh_radius, cfg.fpfh_max_nn, chunk=len(cloud))
     slabs = fpfh(cloud.points, cloud.normals, cfg.fpfh_radius, cfg.fpfh_max_nn, chunk=len(cloud) // 7)
     np.testing.assert_array_equal(slabs, whole)
+
+
+def test_normals_are_turned_toward_the_nearest_sensor():
+    """Whatever sign the solver gave, each normal ends up facing the sensor nearest to its point."""
+    rng = np.random.default_rng(3)
+    points = np.c_[rng.uniform(-5, 5, (400, 2)), np.zeros(400)]   # a floor at z = 0
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1)) * rng.choice([-1.0, 1.0], (400, 1))
+    sensors = np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]])      # one above the left half, one below the right
+    turned = toward_nearest(normals, points, sensors)
+    left = points[:, 0] < 0
+    assert (turned[left, 2] == 1.0).all() and (turned[~left, 2] == -1.0).all()
+
+
+def test_a_revisit_seen_from_the_other_way_is_found_once_normals_face_the_sensors():
+    """Revisit query 200 looks 139 deg away from the map's nearest pose. With the solver's signs
+    (decided in each cloud's own axes) the fused scans' FPFH find almost none of their true
+    matches in the map and the search settles elsewhere; with every normal facing the sensor that
+    saw it, the place is found and published."""
+    require_shared_data("the revisit sequence")
+    cloud, trajectory, queries = load_sequence(DATA / "revisit" / "avia_hku2_loop")
+    query = next(q for q in queries if q.id == "scan_000200")
+    outcome = {}
+    for toward in (True, False):
+        cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": toward})
+        prepared = prepare_cloud(cloud, cfg, "map", trajectory=trajectory)
+        assert prepared.normals_toward_sensors == toward
+        result = register(query.history, prepared, cfg)
+        outcome[toward] = (is_success(result.transform, query.truth, "outdoor"), result.accepted)
+    assert outcome == {True: (True, True), False: (False, False)}
+
+
+def test_both_clouds_compare_under_one_normal_convention(kitchen_pair):
+    """Normals face the sensors only when both clouds know theirs; a raw cloud follows a prepared
+    one, and two prepared under different conventions, or a raw cloud with no sensor against one
+    whose normals face its own, are refused with what to do."""
+    src, tgt, _, _ = kitchen_pair
+    cfg = RegorConfig().replace({"features.normals_toward_sensors": True})
+    scan = prepare_cloud(src, cfg, viewpoint=(0, 0, 0))
+    fragment_without_sensor = prepare_cloud(tgt, cfg, viewpoint=None)
+    assert scan.normals_toward_sensors and not fragment_without_sensor.normals_toward_sensors
+    with pytest.raises(RegistrationError, match="different conventions"):
+        register(scan, fragment_without_sensor, cfg)
+    with pytest.raises(RegistrationError, match="source_viewpoint"):
+        register(src, prepare_cloud(tgt, cfg, viewpoint=(0, 0, 0)), cfg, source_viewpoint=None)
+    # the raw scan follows the target: its normals keep the solver's signs, as the target's do
+    assert register(src, fragment_without_sensor, cfg, source_viewpoint=(0, 0, 0)).transform.shape == (4, 4)
+    assert not prepare_cloud(src, RegorConfig(), viewpoint=(0, 0, 0)).normals_toward_sensors   # off by default

@@ -47,6 +47,11 @@ class FeatureConfig:
                                 "map)", 1, 100000)
     search_probes_nearest: int = param(64, "cells of the approximate feature index scanned for a keypoint's nearest "
                                         "neighbour (64: 99.8 % of the exact ones on a real map)", 1, 100000)
+    normals_toward_sensors: bool = param(False, "turn each normal toward the nearest known sensor position (a "
+                                          "viewpoint, a map's trajectory) when both clouds know theirs: FPFH then "
+                                          "compares a surface's seen side whatever the frames' headings (PCL's "
+                                          "convention; off: open3d's solver picks the sign, as the authors run it; "
+                                          "the gate's thresholds were fitted with it off)")
     range_image_resolution: float = param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
                                            "for the free-space check (coarser than the sensor's own resolution) "
                                            "[deg]", 0.05, 10.0)

@@ -125,7 +125,10 @@ def prepare_cloud(points: Union[np.ndarray, ScanSequence], config: RegorConfig, 
     aggregated along a trajectory, a map: never assumed, since a wrong viewpoint makes the gate
     trust free space nobody saw. Give it for a single scan. ``trajectory`` (a map's (K, 4, 4)
     sensor poses or (K, 3) positions, in its frame) lets the gate also check the map's free space
-    as seen from where it was built. A ScanSequence carries its own viewpoints."""
+    as seen from where it was built. A ScanSequence carries its own viewpoints.
+
+    With the sensor positions known, the normals face them (features.normals_toward_sensors):
+    register() then compares it only with a cloud whose sensor positions are known too."""
     if isinstance(points, ScanSequence):
         if viewpoint is not None:
             raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
@@ -159,13 +162,40 @@ def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: Optional[np.ndarray],
             f"({None if own is None else own.tolist()}); prepare it again with the right one")
 
 
-def _prepared(cloud: Union[SeenCloud, PreparedCloud], config: RegorConfig, name: str) -> PreparedCloud:
+def _normals_toward_sensors(source: Union[SeenCloud, PreparedCloud], target: Union[SeenCloud, PreparedCloud],
+                            config: RegorConfig) -> bool:
+    """Whether both clouds' normals face their sensors (features.normals_toward_sensors): FPFH
+    compares only under one convention. A prepared cloud's is fixed and a raw one follows it; two
+    raw clouds face their sensors when both know where theirs were."""
+    clouds = {"source": source, "target": target}
+    fixed = {name: c.normals_toward_sensors for name, c in clouds.items() if isinstance(c, PreparedCloud)}
+    if len(set(fixed.values())) > 1:
+        raise RegistrationError(
+            "the source's and the target's normals were prepared under different conventions (one "
+            "facing its sensors, one with the solver's signs), so their features do not compare; "
+            "prepare both with their sensor positions known (viewpoint, or a map's trajectory), or "
+            "both with features.normals_toward_sensors=false")
+    if not fixed:
+        return config.features.normals_toward_sensors and all(c.viewpoints is not None for c in clouds.values())
+    toward = next(iter(fixed.values()))
+    for name, cloud in clouds.items():
+        if toward and isinstance(cloud, SeenCloud) and cloud.viewpoints is None:
+            other = "target" if name == "source" else "source"
+            raise RegistrationError(
+                f"the {other}'s normals face its sensors but the {name}'s sensor position is unknown, "
+                f"so their features do not compare; give {name}_viewpoint, or set "
+                "features.normals_toward_sensors=false")
+    return toward
+
+
+def _prepared(cloud: Union[SeenCloud, PreparedCloud], config: RegorConfig, name: str,
+              may_face_sensors: bool) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name)
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors)
 
 
 def register(source: SourceInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
@@ -200,9 +230,10 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
     # prepared once: the target for every attempt, the source also for the reverse check
-    raw_source = _raw(source, source_viewpoint, "source")
-    prepared_source = _prepared(raw_source, config, "source")
-    target = _prepared(_raw(target, target_viewpoint, "target"), config, "target")
+    raw_source, raw_target = _raw(source, source_viewpoint, "source"), _raw(target, target_viewpoint, "target")
+    toward = _normals_toward_sensors(raw_source, raw_target, config)
+    prepared_source = _prepared(raw_source, config, "source", toward)
+    target = _prepared(raw_target, config, "target", toward)
     if search_region is not None:
         target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
@@ -213,7 +244,7 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
         turn = regrid_rotation(config.seed, attempts)
         regrid_start = time.perf_counter()
         try:
-            turned = prepare(raw_source.moved(turn), config.features, "source")
+            turned = prepare(raw_source.moved(turn), config.features, "source", may_face_sensors=toward)
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
         retry = _register_once(turned, target, config, prior and prior.turned(turn[:3, :3]))

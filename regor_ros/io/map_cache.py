@@ -24,7 +24,7 @@ from ..core.feature_index import FeatureIndex
 from ..core.features import PreparedCloud
 from ..core.map_view import MapView
 
-CACHE_VERSION = 2  # raise when the saved arrays or their meaning change
+CACHE_VERSION = 3  # raise when the saved arrays or their meaning change (3: normals face the sensors)
 
 
 class CacheError(Exception):
@@ -62,7 +62,7 @@ def save_map(prepared: PreparedCloud, path: Path, key: str) -> int:
                  features=prepared.features, index_centres=centres, index_cells=cells,
                  input_size=np.array(prepared.input_size), surface=view.surface,
                  footprint=np.array(view.footprint), resolution_deg=np.array(view.resolution_deg),
-                 trajectory=view.trajectory)
+                 trajectory=view.trajectory, normals_toward_sensors=np.array(prepared.normals_toward_sensors))
     os.replace(partial, path)
     return path.stat().st_size
 
@@ -87,7 +87,7 @@ def load_map(path: Path, key: str, config: FeatureConfig) -> PreparedCloud:
             view = MapView(surface, float(saved["footprint"]), float(saved["resolution_deg"]),
                            trajectory, cKDTree(trajectory) if len(trajectory) else None)
             return PreparedCloud(points, normals, features, point_tree, index, config,
-                                 int(saved["input_size"]), (), view)
+                                 int(saved["input_size"]), (), view, bool(saved["normals_toward_sensors"]))
     except CacheError:
         raise
     except Exception as exc:  # a truncated or foreign file: any reader error means "rebuild"

@@ -83,6 +83,8 @@ def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int
         if row.error:
             raise ValueError(row.error)
         config = RegorConfig.preset(row.preset).replace(overrides)
+        if row.source_viewpoint is None or row.target_viewpoint is None:  # normals face sensors on one side only
+            config = config.replace({"features.normals_toward_sensors": False})
         clouds = _process_clouds(cache_capacity)
         target, target_reused = clouds.get(row.target_path, row.target_viewpoint, config, "target")
         if config.acceptance.retries:

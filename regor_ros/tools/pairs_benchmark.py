@@ -118,6 +118,8 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
     """Every method on one pair; a crash counts as a failure with its error recorded."""
     name, kind, src, tgt, T_gt = pair.name, pair.kind, pair.src, pair.tgt, pair.T_gt
     t0 = time.perf_counter()
+    if pair.src_viewpoint is None or pair.tgt_viewpoint is None:  # normals can face sensors on one side only
+        config = config.replace({"features.normals_toward_sensors": False})
     source = prepare_cloud(src, config, "source", viewpoint=pair.src_viewpoint)
     target = prepare_cloud(tgt, config, "target", viewpoint=pair.tgt_viewpoint)
     feature_seconds = time.perf_counter() - t0
