@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from conftest import DATA, moved_pair, require_shared_data
 
-from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
+from regor_ros.core import RegistrationError, RegorConfig, for_clouds_seen_from, prepare_cloud, register
 from regor_ros.core.features import largest_plane, toward_nearest
 from regor_ros.core.metrics import is_success
 from regor_ros.tools.map_benchmark import load_sequence
@@ -106,3 +106,6 @@ def test_both_clouds_compare_under_one_normal_convention(kitchen_pair):
     # the raw scan follows the target: its normals keep the solver's signs, as the target's do
     assert register(src, fragment_without_sensor, cfg, source_viewpoint=(0, 0, 0)).transform.shape == (4, 4)
     assert not prepare_cloud(src, RegorConfig(), viewpoint=(0, 0, 0)).normals_toward_sensors   # off by default
+    # preparing one registration's clouds apart: facing the sensors only if every viewpoint is known
+    assert for_clouds_seen_from(cfg, (0, 0, 0), (1, 0, 0)).features.normals_toward_sensors
+    assert not for_clouds_seen_from(cfg, (0, 0, 0), None).features.normals_toward_sensors

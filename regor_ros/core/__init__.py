@@ -19,7 +19,7 @@ from .metrics import (
                       rotation_error_deg,
                       translation_error,
 )
-from .pipeline import Candidate, Correspondences, RegistrationResult, prepare_cloud, register
+from .pipeline import Candidate, Correspondences, RegistrationResult, for_clouds_seen_from, prepare_cloud, register
 from .scan_history import AccumulationLimits, ScanHistory
 from .search_region import SearchRegion
 from .sequence import ScanSequence
@@ -29,6 +29,7 @@ from .visibility import ORIGIN, parse_viewpoint
 __all__ = ["AccumulationLimits", "CHOICES", "Candidate", "ConfigError", "Correspondences", "ERROR_SIGMAS_99",
            "FeatureConfig", "INLIER_THRESHOLDS", "MAX_ABS_COORDINATE", "ORIGIN", "PRESETS", "PreparedCloud",
            "RegistrationError", "RegistrationResult", "RegorConfig", "Rival", "ScanHistory", "ScanSequence",
-           "SearchRegion", "ambiguity", "attached_pose", "correct_mask", "error_sigmas", "is_success",
-           "match_features", "param", "parse_numbers", "parse_viewpoint", "prepare_cloud", "random_rigid_motion",
-           "register", "rotation_error_deg", "to_matrix", "transform_points", "translation_error", "warm_up"]
+           "SearchRegion", "ambiguity", "attached_pose", "correct_mask", "error_sigmas", "for_clouds_seen_from",
+           "is_success", "match_features", "param", "parse_numbers", "parse_viewpoint", "prepare_cloud",
+           "random_rigid_motion", "register", "rotation_error_deg", "to_matrix", "transform_points",
+           "translation_error", "warm_up"]

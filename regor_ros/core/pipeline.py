@@ -162,6 +162,16 @@ def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: Optional[np.ndarray],
             f"({None if own is None else own.tolist()}); prepare it again with the right one")
 
 
+def for_clouds_seen_from(config: RegorConfig, *viewpoints) -> RegorConfig:
+    """``config`` for preparing the clouds of one registration one by one (a benchmark's pair, a
+    batch row), given each one's viewpoint (None when unknown): their normals may face their
+    sensors only when every viewpoint is known, since register() refuses two clouds prepared
+    under different conventions (_normals_toward_sensors)."""
+    if any(v is None for v in viewpoints):
+        return config.replace({"features.normals_toward_sensors": False})
+    return config
+
+
 def _normals_toward_sensors(source: Union[SeenCloud, PreparedCloud], target: Union[SeenCloud, PreparedCloud],
                             config: RegorConfig) -> bool:
     """Whether both clouds' normals face their sensors (features.normals_toward_sensors): FPFH

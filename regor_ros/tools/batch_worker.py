@@ -17,7 +17,7 @@ from typing import Dict, Optional
 
 import numba
 
-from ..core import PreparedCloud, RegorConfig, prepare_cloud, register
+from ..core import PreparedCloud, RegorConfig, for_clouds_seen_from, prepare_cloud, register
 from ..io.cloud_io import read_cloud
 from .batch_list import PairRow
 
@@ -82,9 +82,8 @@ def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int
     try:
         if row.error:
             raise ValueError(row.error)
-        config = RegorConfig.preset(row.preset).replace(overrides)
-        if row.source_viewpoint is None or row.target_viewpoint is None:  # normals face sensors on one side only
-            config = config.replace({"features.normals_toward_sensors": False})
+        config = for_clouds_seen_from(RegorConfig.preset(row.preset).replace(overrides),
+                                      row.source_viewpoint, row.target_viewpoint)
         clouds = _process_clouds(cache_capacity)
         target, target_reused = clouds.get(row.target_path, row.target_viewpoint, config, "target")
         if config.acceptance.retries:

@@ -27,6 +27,7 @@ from ..core import (
     ConfigError,
     RegorConfig,
     correct_mask,
+    for_clouds_seen_from,
     is_success,
     match_features,
     prepare_cloud,
@@ -118,8 +119,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
     """Every method on one pair; a crash counts as a failure with its error recorded."""
     name, kind, src, tgt, T_gt = pair.name, pair.kind, pair.src, pair.tgt, pair.T_gt
     t0 = time.perf_counter()
-    if pair.src_viewpoint is None or pair.tgt_viewpoint is None:  # normals can face sensors on one side only
-        config = config.replace({"features.normals_toward_sensors": False})
+    config = for_clouds_seen_from(config, pair.src_viewpoint, pair.tgt_viewpoint)
     source = prepare_cloud(src, config, "source", viewpoint=pair.src_viewpoint)
     target = prepare_cloud(tgt, config, "target", viewpoint=pair.tgt_viewpoint)
     feature_seconds = time.perf_counter() - t0
