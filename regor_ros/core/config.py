@@ -51,7 +51,7 @@ class FeatureConfig:
                                           "viewpoint, a map's trajectory) when both clouds know theirs: FPFH then "
                                           "compares a surface's seen side whatever the frames' headings (PCL's "
                                           "convention; off: open3d's solver picks the sign, as the authors run it; "
-                                          "the gate's thresholds were fitted with it off)")
+                                          "on in the outdoor preset only: the indoor gate was fitted with it off)")
     range_image_resolution: float = param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
                                            "for the free-space check (coarser than the sensor's own resolution) "
                                            "[deg]", 0.05, 10.0)
@@ -256,7 +256,7 @@ class RegorConfig:
         if name == "outdoor":
             return cls(
                 features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5,
-                                       remove_ground=True),
+                                       remove_ground=True, normals_toward_sensors=True),
                 initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
