@@ -9,7 +9,7 @@ from regor_ros.tools.benchmark import main
 from regor_ros.tools.map_benchmark import tiled
 
 SEQUENCE = "fastlio_avia_hku2"
-QUERIES = ["scan_000005", "scan_000039"]  # one Regor registers, one it does not (measured)
+QUERIES = ["scan_000005", "scan_000107"]  # one Regor registers, one it does not (measured)
 
 
 def short_sequence(root):
@@ -35,14 +35,14 @@ def test_maps_mode_registers_every_query_alone_and_fused_and_writes_its_reports(
         [(m, q, i) for m in ("regor", "kiss-matcher") for q in QUERIES for i in ("single", "sequence")]
     regor = {(r["query"].split("/")[1], r["input"]): r for r in rows if r["method"] == "regor"}
     assert regor["scan_000005", "single"]["success"] == "True" and regor["scan_000005", "single"]["accepted"] == "True"
-    assert regor["scan_000039", "single"]["accepted"] == "False"        # wrong alone: not published
-    fused = regor["scan_000039", "sequence"]                             # found with the scans before it
+    assert regor["scan_000107", "single"]["accepted"] == "False"        # wrong alone: not published
+    fused = regor["scan_000107", "sequence"]                             # found with the scans before it
     assert fused["success"] == "True" and fused["accepted"] == "True" and fused["scans"] == "5"
     assert float(regor["scan_000005", "single"]["map_seconds"]) > 0
     assert int(regor["scan_000005", "single"]["map_keypoints"]) > 10000
     # the gate's figures whatever the verdict, both sides: the map is seen from the pose
     assert float(regor["scan_000005", "single"]["map_seen"]) > 0.9
-    right, wrong = regor["scan_000005", "single"], regor["scan_000039", "single"]
+    right, wrong = regor["scan_000005", "single"], regor["scan_000107", "single"]
     assert float(right["free_space_target"]) < float(wrong["free_space_target"])
     assert 0 < float(right["seconds_matching"]) < float(right["seconds"])
     assert all(0.1 < float(r["peak_memory_gb"]) < 5 for r in rows)

@@ -72,7 +72,7 @@ def test_the_covariance_covers_the_error_along_a_narrow_scans_weak_direction(avi
 
 def test_scans_fused_along_odometry_find_a_scan_that_alone_is_lost(avia):
     cloud, trajectory, queries = avia
-    query = queries["scan_000039"]
+    query = queries["scan_000107"]
     target = prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory)
     alone = register(query.scan, target, OUTDOOR)
     assert not is_success(alone.transform, query.truth, "outdoor") and not alone.accepted

@@ -23,8 +23,9 @@ def test_registers_real_pairs_from_an_arbitrary_pose(name, must_accept):
         f"TE {translation_error(result.transform, T_gt):.2f} m")
     if must_accept:
         assert result.accepted, result.reason
-    # regeneration ends with many more correct pairs than the initial matches hold
-    assert result.num_inliers > 3 * result.initial.inlier.sum()
+    # regeneration ends with many more correct pairs than the initial matches hold (outdoors, with
+    # the normals facing the sensors, the initial matches hold a third of the keypoints already)
+    assert result.num_inliers > 2 * result.initial.inlier.sum()
 
 
 def test_result_contents(kitchen_pair):
@@ -226,12 +227,14 @@ def test_plane_refinement_brings_a_sparse_scan_pair_from_a_metre_off_to_centimet
     """Two Livox Avia scans 11 m apart (HKU campus): the point level pairs keypoints up to tau_e
     = 1.2 m apart and settles about a metre off; point-to-plane lands on the truth. (Whether the
     gate publishes it is not this test's subject: since the minimal sample is discounted, its 7
-    independent agreeing matches of 216 are what chance gives in this search, and it is withheld.)"""
+    independent agreeing matches of 216 are what chance gives in this search, and it is withheld.)
+    The normals keep the solver's signs: facing each scan's sensor, this pair is not found at all
+    (measured: 123 deg off, withheld), a loss noted where the outdoor preset turned them."""
     require_shared_data("the Avia scan pair")
     folder = DATA / "maps" / "fastlio_avia_hku2" / "queries"
     src, tgt = np.load(folder / "scan_000005" / "scan.npy"), np.load(folder / "scan_000057" / "scan.npy")
     T_gt = np.linalg.inv(np.loadtxt(folder / "scan_000057" / "gt.txt")) @ np.loadtxt(folder / "scan_000005" / "gt.txt")
-    cfg = RegorConfig.preset("outdoor")
+    cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": False})
     point = register(src, tgt, cfg.replace({"estimation.plane_refinement": False}))
     plane = register(src, tgt, cfg)
     assert is_success(plane.transform, T_gt, "outdoor")

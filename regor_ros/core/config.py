@@ -261,7 +261,7 @@ class RegorConfig:
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
                 estimation=EstimationConfig(inlier_threshold=1.2),
-                acceptance=AcceptanceConfig(min_feature_inliers=10, min_feature_inliers_partial=60,
+                acceptance=AcceptanceConfig(min_feature_inliers=5, min_feature_inliers_partial=60,
                                             max_free_space_violation=0.03,
                                             free_space_margin=0.9),
             )
