@@ -74,7 +74,9 @@ class NodeSettings:
     map_frame: str = param("map", "frame of the map_file's points: the frame the poses are published in (read only)")
     map_trajectory_file: str = param("", "the sensor poses the map_file was built from, TUM format (t x y z qx qy "
                                       "qz qw, as SLAM packages save it): the free-space check also sees the map "
-                                      "from them; '' = none (read only)")
+                                      "from them, and with features.normals_toward_sensors (the outdoor preset) "
+                                      "the map's normals face them, as each scan's face its sensor; '' = none: "
+                                      "both keep the solver's signs (read only)")
     map_cache: bool = param(True, "keep the prepared map_file in a cache file (beside the map, or in "
                              "map_cache_dir) and load it at the next start when map, trajectory and feature "
                              "settings are unchanged; a stale or unreadable cache is rebuilt (read only)")
