@@ -2,8 +2,9 @@
 import csv
 import json
 
+import numpy as np
 import pytest
-from conftest import PAIRS, require_shared_data
+from conftest import DATA, PAIRS, require_shared_data
 
 from regor_ros.tools.benchmark import main
 from regor_ros.tools.pairs_benchmark import summarise
@@ -95,8 +96,6 @@ def test_summary_recall_spread_inr_and_false_accepts():
 
 
 def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
-    import numpy as np
-
     from regor_ros.core.geometry import transform_points
     from regor_ros.tools.pairs_benchmark import Pair
     rng = np.random.default_rng(0)
@@ -107,3 +106,57 @@ def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
     np.testing.assert_allclose(moved.src, transform_points(M, src))
     np.testing.assert_allclose(moved.src_viewpoint, transform_points(M, pair.src_viewpoint[None])[0])
     assert moved.tgt_viewpoint is None and pair.moved(None) is pair
+
+
+THREEDMATCH = DATA / "threedmatch"
+UMD = "sun3d-hotel_umd-maryland_hotel3"
+
+
+def threedmatch_folder(root):
+    """Two real 3DMatch entries of one scene, and the first again with its truth moved by a metre
+    and turned by 90 degrees: whatever Regor publishes for it is a gross wrong pose."""
+    require_shared_data("the 3DMatch benchmark test")
+    if not (THREEDMATCH / "pairs.json").is_file():
+        pytest.fail(f"{THREEDMATCH} is missing from the shared data")
+    entries = [e for e in json.loads((THREEDMATCH / "pairs.json").read_text()) if e["scene"] == UMD][:2]
+    wrong = dict(entries[0], T=(np.array(entries[0]["T"]) @ np.array(
+        [[0, -1, 0, 1.0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])).tolist(), bench="3DLoMatch")
+    folder = root / "threedmatch"
+    folder.mkdir()
+    (folder / "pairs.json").write_text(json.dumps(entries + [wrong]))
+    (folder / UMD).symlink_to(THREEDMATCH / UMD)
+    return folder, entries
+
+
+def test_threedmatch_benchmark_reports_recall_per_list_and_gross_wrong_poses(tmp_path, capsys):
+    folder, entries = threedmatch_folder(tmp_path)
+    out = tmp_path / "out"
+    assert main(["--threedmatch", str(folder), "--methods", "regor", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "threedmatch.csv")))
+    assert [r["bench"] for r in rows] == ["3DMatch", "3DMatch", "3DLoMatch"]
+    assert rows[0]["pair"] == f"3dmatch_hotel_umd3_{entries[0]['j']}_{entries[0]['i']}"
+    # the same clouds give the same pose; against the moved truth it is wrong, and gross
+    assert rows[0]["rotation_error_deg"] != rows[2]["rotation_error_deg"]
+    assert rows[0]["accepted"] == rows[2]["accepted"] and rows[2]["success"] == "False"
+    assert float(rows[2]["rotation_error_deg"]) > 20.0
+    report = (out / "threedmatch.md").read_text()
+    correct = sum(r["success"] == "True" for r in rows[:2])
+    published = sum(r["success"] == "True" and r["accepted"] == "True" for r in rows[:2])
+    assert f"| 3DMatch | regor | {50.0 * correct:.1f} % | {correct} / 2 | {published} (" in report
+    gross = 1 if rows[2]["accepted"] == "True" else 0
+    assert f"| 3DLoMatch | regor | 0.0 % | 0 / 1 | 0 | {gross} ({gross}) |" in report
+    assert "| hotel_umd | 3DMatch |" in report  # the place, as the other sets name it
+
+
+def test_threedmatch_sample_is_fixed_and_a_bad_list_is_refused(tmp_path, capsys):
+    from regor_ros.tools.threedmatch_benchmark import load_list
+    listing = [{"bench": "3DMatch", "scene": "s", "i": i, "j": i + 1, "T": np.eye(4).tolist()} for i in range(40)]
+    (tmp_path / "pairs.json").write_text(json.dumps(listing))
+    first = [e["name"] for e in load_list(tmp_path, 10, None)]
+    assert first == [e["name"] for e in load_list(tmp_path, 10, None)] and len(set(first)) == 10
+    assert [e["name"] for e in load_list(tmp_path, None, "s_6_5")] == ["3dmatch_s_6_5"]
+    del listing[3]["T"]
+    (tmp_path / "pairs.json").write_text(json.dumps(listing))
+    with pytest.raises(SystemExit):
+        main(["--threedmatch", str(tmp_path), "--out", str(tmp_path / "out")])
+    assert "entry 3 lacks T" in capsys.readouterr().err

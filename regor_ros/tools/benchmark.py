@@ -1,6 +1,7 @@
 """regor-bench: Regor against the methods users would otherwise pick, on the shared real data.
 
-One command line for every benchmark: pairs (and ``--mismatched``, pairs_benchmark), scan-to-map
+One command line for every benchmark: pairs (and ``--mismatched``, pairs_benchmark), the 3DMatch /
+3DLoMatch test lists (``--threedmatch``, threedmatch_benchmark), scan-to-map
 relocalization (``--maps``) and map scaling (``--map-scaling``, map_benchmark), and regor-batch's
 throughput (``--batch``, batch_benchmark). Each writes a markdown report, a per-registration CSV
 and a plot into ``--out``, and prints the report.
@@ -19,6 +20,7 @@ from .pairs_benchmark import run_pairs
 from .peers import METHODS
 from .profile_benchmark import run_profile
 from .register_cli import parse_overrides
+from .threedmatch_benchmark import run_threedmatch
 
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
                f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
@@ -65,6 +67,12 @@ def main(argv=None) -> int:
                         help="instead: register the pairs of the given folders (and with --maps, every map "
                              "query) under cProfile and report the stage medians and the functions with the "
                              "most own time")
+    parser.add_argument("--threedmatch", type=Path, metavar="DIR",
+                        help="instead: the 3DMatch / 3DLoMatch test lists in DIR (pairs.json: a list of "
+                             "{bench, scene, i, j, T}, T mapping fragment j into fragment i; <scene>/<k>.npy), "
+                             "Regor and KISS-Matcher by default; RR per list, published correct / wrong / gross")
+    parser.add_argument("--sample", type=int, metavar="N",
+                        help="with --threedmatch: a fixed seeded sample of N pairs (the same N, the same pairs)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                         help="local worker processes for --batch (default 1 2)")
     args = parser.parse_args(argv)
@@ -72,6 +80,8 @@ def main(argv=None) -> int:
     if args.profile:
         print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
         return 0
+    if args.threedmatch:
+        return run_threedmatch(args, argv, _methods(args.methods or "regor,kiss-matcher", METHODS, parser), parser)
     if args.maps or args.map_scaling or args.batch:
         return _map_main(args, argv, parser)
     if not args.data:
