@@ -5,4 +5,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/environment.sh
 echo "== tests on ROS 2 $REGOR_ROS_DISTRO (rclpy from $(python -c 'import rclpy, os; print(os.path.dirname(rclpy.__file__))'))"
-exec python -m pytest -q "${@:-test}"   # every test, or the pytest arguments given
+exec python -m pytest -q -rs "${@:-test}"   # every test (-rs: each skipped one says why), or the arguments given

@@ -107,6 +107,9 @@ def test_configure_activate_relocalize_then_load_map_swaps_the_map(install, ros,
                 assert answer.result == LoadMap.Response.RESULT_SUCCESS, node.output()
                 failed = call(ros, LoadMap, "load_map", LoadMap.Request(map_url=str(map_files["random"])))
                 assert failed.result == LoadMap.Response.RESULT_INVALID_MAP_DATA   # the new map stays
+                absent = call(ros, LoadMap, "load_map", LoadMap.Request(map_url=str(map_files["missing"])))
+                assert absent.result == LoadMap.Response.RESULT_MAP_DOES_NOT_EXIST
+                assert "no such file, the previous map stays" in node.output()
             scan, _, truth = load_map_query(name, "scan_000005")
             seen = len(ros.poses)
             answer = _relocalize(ros, scan)
@@ -116,6 +119,7 @@ def test_configure_activate_relocalize_then_load_map_swaps_the_map(install, ros,
             assert is_success(T, truth, "outdoor"), (name, rotation_error_deg(T, truth), translation_error(T, truth))
             assert ros.statuses[-1]["map_file"] == str(map_files[name])
         assert _transition(ros, Transition.TRANSITION_DEACTIVATE)
+        assert "inactive: not registering" in node.output()
         assert _transition(ros, Transition.TRANSITION_CLEANUP)
         assert _state(ros) == State.PRIMARY_STATE_UNCONFIGURED
     finally:

@@ -119,3 +119,32 @@ def test_the_readme_commands_run_as_written_after_set_up(tool):
     assert path, f"{tool} is not on PATH: run scripts/setup.sh and activate .venv"
     done = subprocess.run([path, "--help"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "usage:" in done.stdout, done.stderr
+
+
+def test_random_bytes_as_npy_get_no_pickle_advice(tmp_path):
+    path = tmp_path / "noise.npy"
+    path.write_bytes(np.random.default_rng(1).bytes(512))
+    with pytest.raises(CloudFileError) as error:
+        read_cloud(path)
+    assert "not a numpy .npy array file" in str(error.value) and "pickle" not in str(error.value)
+
+
+def test_relocalize_with_a_missing_scan_says_so_in_one_line_and_exits_2(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.relocalize_client", "--scan",
+                           str(tmp_path / "missing.npy"), "--timeout", "1"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == f"regor-relocalize: {tmp_path / 'missing.npy'}: no such file"
+
+
+def test_bench_help_shows_examples_and_the_data_formats_and_writes_beside_the_committed_results():
+    proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.benchmark", "--help"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0
+    assert "regor-bench --threedmatch ../shared/data/threedmatch --sample 200" in proc.stdout
+    assert 'pairs.json, a list of {"name", "kind"' in proc.stdout and "default: bench-out" in proc.stdout
+
+
+def test_the_preset_help_names_the_sensors_and_the_default():
+    proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.register_cli", "--help"],
+                          capture_output=True, text=True, timeout=300)
+    assert "default: indoor" in proc.stdout and "LiDAR" in proc.stdout

@@ -42,7 +42,9 @@ def _npy(path: Path) -> np.ndarray:
     try:
         data = np.load(path, allow_pickle=False)
     except (ValueError, OSError) as exc:
-        raise CloudFileError(f"{path}: not a numpy array file ({exc})") from None
+        # numpy reads unknown bytes as a pickle and advises allow_pickle: never for a cloud
+        why = "unrecognised contents" if "pickle" in str(exc) else str(exc)
+        raise CloudFileError(f"{path}: not a numpy .npy array file ({why})") from None
     if data.ndim != 2 or data.shape[1] < 3:
         raise CloudFileError(f"{path}: array of shape {data.shape}, need (N, 3) or more columns")
     return np.asarray(data[:, :3], dtype=np.float64)

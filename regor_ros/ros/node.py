@@ -161,6 +161,7 @@ class RegisterNode(LifecycleNode):
         with self._lock:
             self._active = False
         self.health.lifecycle = "inactive"
+        self.get_logger().info("inactive: not registering (activate resumes; the map stays loaded)")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -445,7 +446,8 @@ class RegisterNode(LifecycleNode):
         missing = [p for p in (path, trajectory) if p and not Path(p).expanduser().is_file()]
         if not path or missing:
             response.result = LoadMap.Response.RESULT_MAP_DOES_NOT_EXIST
-            self.get_logger().error(f"load_map: no such file: {missing[0] if missing else request.map_url!r}")
+            self.get_logger().error(f"load_map: no such file, the previous map stays: "
+                                    f"{missing[0] if missing else request.map_url!r}")
             return response
         with self._lock:
             config, settings = self.config, self.settings

@@ -27,8 +27,23 @@ STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place'
                "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
 
 
+EPILOG = """examples:
+  regor-bench ../shared/data/pairs --methods regor,kiss-matcher --rotate 1 2 3
+  regor-bench --threedmatch ../shared/data/threedmatch --sample 200
+  regor-bench --maps ../shared/data/maps --methods regor,kiss-matcher
+
+data formats:
+  pairs folder: pairs.json, a list of {"name", "kind": indoor|outdoor|object, optional
+    "src_viewpoint"/"tgt_viewpoint": [x, y, z] or null}, and <name>/src.npy, tgt.npy ((N, 3)
+    float, metres), gt.txt (4x4 T_target_source)
+  --threedmatch folder: pairs.json, a list of {"bench": 3DMatch|3DLoMatch, "scene", "i", "j",
+    "T": 4x4 mapping fragment j into fragment i}, and <scene>/<k>.npy (viewpoint at the origin)
+  --maps folder: one folder per sequence with map.npy, queries.json and queries/<id>/"""
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0], epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("data", type=Path, nargs="*",
                         help="folders with pairs.json and one folder per pair")
     parser.add_argument("--methods", help=f"comma-separated subset of: {', '.join(METHODS)} (default: "
@@ -40,7 +55,8 @@ def main(argv=None) -> int:
                                         "these comma-separated strings")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a core parameter for every preset (repeatable)")
-    parser.add_argument("--out", type=Path, default=Path("results"), help="output folder")
+    parser.add_argument("--out", type=Path, default=Path("bench-out"),
+                        help="output folder (default: %(default)s; the committed figures are in results/)")
     parser.add_argument("--level", action="store_true",
                         help="the clouds come from level-mounted sensors in z-up frames (ground "
                              "vehicles): the gravity prior is on with each cloud's z axis up (a moved "

@@ -98,6 +98,19 @@ class PairClient(Node):
         return None, None
 
 
+def verdict_line(status: dict) -> str:
+    """The status message's verdict in one short line (--status prints all of it)."""
+    evidence = status.get("evidence") or {}
+    worst = (status.get("visibility") or {}).get("worst")
+    figures = [f"{status['num_inliers']} inliers", f"{status['feature_inliers']} feature matches agree"]
+    if evidence.get("log10_false_alarms") is not None:
+        figures.append(f"10^{evidence['log10_false_alarms']:.1f} false alarms")
+    if worst is not None:
+        figures.append(f"{100 * worst:.1f} % in free space")
+    verdict = "published" if status["accepted"] else "withheld"
+    return f"verdict: {verdict} ({', '.join(figures)}; --status prints every figure)"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("source", type=Path, help="source cloud, (N, 3) .npy")
@@ -107,6 +120,8 @@ def main(argv=None) -> int:
                         help="turn the source by a random rotation about its sensor first (truth "
                              "adjusted); it stays in its sensor frame, as the node's default viewpoint assumes")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the node")
+    parser.add_argument("--status", action="store_true",
+                        help="print the node's whole status message (JSON: every figure of the verdict)")
     args = parser.parse_args(argv)
 
     src, tgt = np.load(args.source), np.load(args.target)
@@ -130,7 +145,7 @@ def main(argv=None) -> int:
     if status is None:
         print("no answer from register_node", file=sys.stderr)
         return 2
-    print(f"status: {json.dumps(status)}")
+    print(json.dumps(status) if args.status else verdict_line(status))
     if pose is None:
         print(f"pose rejected by the quality gate: {status['reason']}")
         return 1

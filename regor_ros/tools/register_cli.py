@@ -66,7 +66,9 @@ def main(argv=None) -> int:
                                      epilog=f"formats: {', '.join(FORMATS)}")
     parser.add_argument("source", help="cloud to move")
     parser.add_argument("target", help="cloud it is registered to")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor")
+    parser.add_argument("--preset", choices=PRESETS, default="indoor",
+                        help="parameter set for the sensor: indoor (RGB-D fragments, 5 cm voxels), outdoor "
+                             "(LiDAR, 30 cm), object (scanned objects); default: %(default)s")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter, e.g. --set voxel_size=0.04 (repeatable)")
     for side in ("source", "target"):

@@ -22,7 +22,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from ..io.cloud_io import read_cloud
+from ..io.cloud_io import CloudFileError, read_cloud
 from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
 
@@ -64,7 +64,11 @@ def main(argv=None) -> int:
     parser.add_argument("--node", default="/register_node", help="the node's name")
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for an answer")
     args = parser.parse_args(argv)
-    scan = read_cloud(args.scan) if args.scan else None
+    try:
+        scan = read_cloud(args.scan) if args.scan else None
+    except CloudFileError as exc:
+        print(f"regor-relocalize: {exc}", file=sys.stderr)
+        return 2
 
     rclpy.init()
     client = Client(args.node)
