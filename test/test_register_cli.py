@@ -131,7 +131,8 @@ def test_random_bytes_as_npy_get_no_pickle_advice(tmp_path):
 
 def test_relocalize_with_a_missing_scan_says_so_in_one_line_and_exits_2(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.relocalize_client", "--scan",
-                           str(tmp_path / "missing.npy"), "--timeout", "1"], capture_output=True, text=True, timeout=300)
+                           str(tmp_path / "missing.npy"), "--timeout", "1"],
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip() == f"regor-relocalize: {tmp_path / 'missing.npy'}: no such file"
 
