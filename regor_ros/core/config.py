@@ -134,6 +134,10 @@ class EstimationConfig:
                                     "the voxel size, so the gate judges the pose at the keypoints' resolution; "
                                     "kept when it puts at least as many keypoints within a voxel of the target "
                                     "(sparse scans' point-level poses stay decimetres off; deviation)")
+    visible_candidates: int = param(0, "when the pose puts one cloud into space the other sensor saw through "
+                                       "(acceptance.max_free_space_violation), refine up to this many other "
+                                       "places the search found and take the one that does not, with the most "
+                                       "inliers; the gate then judges it as any pose (0 = off; deviation)", 0, 100)
 
 
 @dataclass

@@ -23,7 +23,7 @@ from .estimate import (
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
-from .initial import initial_stage, led_by
+from .initial import DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION, initial_stage, led_by
 from .kernels import blas_on_one_thread
 from .matching import match_features
 from .metrics import random_rigid_motion
@@ -32,6 +32,7 @@ from .search_region import SearchRegion, restrict
 from .sequence import ScanSequence
 from .verification import Rival, assess, free_space_plausible, reverse_failure, search_region_failure
 from .visibility import ORIGIN, VisibilityFigures
+from .visible_candidate import visible_candidate
 
 CloudInput = Union[np.ndarray, PreparedCloud]
 SourceInput = Union[np.ndarray, PreparedCloud, ScanSequence]
@@ -72,7 +73,7 @@ class RegistrationResult:
     final: Correspondences         # the estimator's point-level inlier pairs
     num_source_keypoints: int
     num_target_keypoints: int
-    selected: str = "regeneration"  # which pose the estimator kept: "regeneration" or "initial"
+    selected: str = "regeneration"  # which pose the estimator kept: "regeneration", "initial" or "candidate"
     stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
     timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
     attempts: int = 1  # registrations run: 1 + the acceptance.retries used
@@ -346,9 +347,22 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
             sizes[f"stage{stage}"] = len(seed_src)
     lap("regeneration")
 
+    def estimator_refined(T_start: np.ndarray):
+        point_level = _refine(T_start, src_cloud, tgt_cloud, config, prior)
+        return _plane_refine(point_level, src_cloud, tgt_cloud, config, prior) \
+            if config.estimation.plane_refinement else point_level
+
     refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config, prior)
     if config.estimation.plane_refinement:
         refined = _plane_refine(refined, src_cloud, tgt_cloud, config, prior)
+    if config.estimation.visible_candidates and not plausible(refined.transform):
+        def distinct(A: np.ndarray, B: np.ndarray) -> bool:
+            return not poses_close(A, B, DISTINCT_ANGLE_DEG,
+                                   DISTINCT_TRANSLATION_FRACTION * config.initial.inlier_threshold)
+        picked = visible_candidate(refined.transform, initial.candidates, config.estimation.visible_candidates,
+                                   estimator_refined, plausible, distinct)
+        if picked is not None:
+            refined, selected = picked, "candidate"
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
