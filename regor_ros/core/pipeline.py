@@ -347,22 +347,12 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
             sizes[f"stage{stage}"] = len(seed_src)
     lap("regeneration")
 
-    def estimator_refined(T_start: np.ndarray):
-        point_level = _refine(T_start, src_cloud, tgt_cloud, config, prior)
-        return _plane_refine(point_level, src_cloud, tgt_cloud, config, prior) \
-            if config.estimation.plane_refinement else point_level
-
     refined, selected = _estimate(seed_src, seed_tgt, initial.transform, src_cloud, tgt_cloud, config, prior)
     if config.estimation.plane_refinement:
         refined = _plane_refine(refined, src_cloud, tgt_cloud, config, prior)
     if config.estimation.visible_candidates and not plausible(refined.transform):
-        def distinct(A: np.ndarray, B: np.ndarray) -> bool:
-            return not poses_close(A, B, DISTINCT_ANGLE_DEG,
-                                   DISTINCT_TRANSLATION_FRACTION * config.initial.inlier_threshold)
-        picked = visible_candidate(refined.transform, initial.candidates, config.estimation.visible_candidates,
-                                   estimator_refined, plausible, distinct)
-        if picked is not None:
-            refined, selected = picked, "candidate"
+        refined, selected = _visible_instead(refined, selected, initial.candidates, src_cloud, tgt_cloud, config,
+                                             prior, plausible)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
@@ -417,6 +407,25 @@ def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config:
     candidate = inliers_at(fine, source.points, target.tree, est.inlier_threshold)
     # keypoints within a voxel of the target, from the residuals found within tau_e
     return candidate if (candidate.distances < voxel).sum() >= (refined.distances < voxel).sum() else refined
+
+
+def _visible_instead(refined, selected: str, candidates: list, source: PreparedCloud, target: PreparedCloud,
+                     config: RegorConfig, prior: Optional[GravityPrior], plausible):
+    """(refinement, selected): the estimator's refinement of the best other place the search found
+    that passes the free-space check, in place of ``refined`` (core/visible_candidate.py), or
+    ``refined`` itself when there is none."""
+    def refine(T: np.ndarray):
+        point_level = _refine(T, source, target, config, prior)
+        return (_plane_refine(point_level, source, target, config, prior) if config.estimation.plane_refinement
+                else point_level)
+
+    def distinct(A: np.ndarray, B: np.ndarray) -> bool:
+        return not poses_close(A, B, DISTINCT_ANGLE_DEG,
+                               DISTINCT_TRANSLATION_FRACTION * config.initial.inlier_threshold)
+
+    picked = visible_candidate(refined.transform, candidates, config.estimation.visible_candidates, refine,
+                               plausible, distinct)
+    return (refined, selected) if picked is None else (picked, "candidate")
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,
