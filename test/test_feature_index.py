@@ -51,7 +51,7 @@ def test_the_exact_search_finds_nearest_candidates_and_back_in_one_pass_ties_to_
     for threads in (1, kernels.threads()):
         with numba_threads(threads):
             answers.append(index.nearest_and_candidates(queries, rows, 20, back=True))
-    for a, b in zip(*answers):
+    for a, b in zip(*answers, strict=True):
         np.testing.assert_array_equal(a, b)
     nearest, similarity, candidates, candidate_similarity, back = answers[0]
     np.testing.assert_array_equal(nearest, product.argmax(1))   # argmax: the first of equal ones
@@ -196,7 +196,7 @@ def test_an_inverted_file_saved_and_restored_searches_as_the_trained_one():
     assert centres.shape[1] == 33 and cells.shape == (30000,)
     restored = FeatureIndex(features, 10000, 64, 32, saved=(centres, cells))
     queries = features[:500] + 0.05 * rng.normal(size=(500, 33)).astype(np.float32)
-    for a, b in zip(trained.search(queries, 20), restored.search(queries, 20)):
+    for a, b in zip(trained.search(queries, 20), restored.search(queries, 20), strict=True):
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="saved index"):
         FeatureIndex(features[:20000], 10000, 64, 32, saved=(centres, cells))

@@ -44,7 +44,7 @@ def test_results_do_not_depend_on_the_thread_count():
                             kernels.triangle_scores(src, tgt, 0.1)))
     finally:
         numba.set_num_threads(before)
-    for one, many in zip(*results):
+    for one, many in zip(*results, strict=True):
         np.testing.assert_array_equal(one, many)
 
 
@@ -129,7 +129,7 @@ def test_within_any_is_the_ball_query():
     points = rng.uniform(-50, 50, size=(30_000, 3))
     centres, radii = rng.uniform(-40, 40, size=(3, 3)), np.array([5.0, 12.5, 20.0])
     expected = np.zeros(len(points), bool)
-    for centre, radius in zip(centres, radii):
+    for centre, radius in zip(centres, radii, strict=True):
         expected[cKDTree(points).query_ball_point(centre, radius)] = True
     assert 100 < expected.sum() < len(points)
     np.testing.assert_array_equal(kernels.within_any(points, centres, radii), expected)

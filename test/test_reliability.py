@@ -234,7 +234,7 @@ def test_load_drops_stale_inputs_and_keeps_memory_and_latency_bounded(install, r
         registration = [s["timings"]["total"] for s in statuses]
         stamps = [(p.header.stamp.sec, p.header.stamp.nanosec) for p in poses]
         latency = [arrived - stamp_to_mono[k]
-                   for k, arrived in zip(stamps, ros.pose_arrivals[poses_before:]) if k in stamp_to_mono]
+                   for k, arrived in zip(stamps, ros.pose_arrivals[poses_before:], strict=False) if k in stamp_to_mono]
         print(f"\nload: published {published} pairs in 60 s, {final['registrations']} registered, "
               f"{final['dropped_stale']} stale inputs dropped; registration median "
               f"{np.median(registration):.2f} s (max {max(registration):.2f}); latency median "

@@ -48,7 +48,7 @@ def matched(T, source):
     return source.points, transform_points(T, source.points)
 
 
-def turn_about_z(degrees, centre=np.zeros(3)):
+def turn_about_z(degrees, centre=(0.0, 0.0, 0.0)):
     a = np.radians(degrees)
     T = np.eye(4)
     T[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]

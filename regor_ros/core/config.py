@@ -7,8 +7,9 @@ from it. Each field carries a description and a valid range in its metadata.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -16,8 +17,8 @@ from .errors import ConfigError
 from .geometry import parse_numbers
 
 
-def param(default: Any, description: str, low: Optional[float] = None,
-           high: Optional[float] = None):
+def param(default: Any, description: str, low: float | None = None,
+           high: float | None = None):
     """A dataclass field with its description and inclusive valid range."""
     meta = {"description": description, "range": (low, high)}
     if isinstance(default, list):
@@ -101,9 +102,9 @@ class InitialConfig:
 class RegenerationConfig:
     """Progressive regeneration stages, each a (neighbours, seeds) pair."""
 
-    stage_neighbors: List[int] = param([100, 20], "k nearest neighbours forming each local region, one entry per "
+    stage_neighbors: list[int] = param([100, 20], "k nearest neighbours forming each local region, one entry per "
                                                   "stage", 1, 1000)
-    stage_seeds: List[int] = param([100, 500], "seed correspondences drawn per stage, one entry per stage", 1, 100000)
+    stage_seeds: list[int] = param([100, 500], "seed correspondences drawn per stage, one entry per stage", 1, 100000)
     consistency_threshold: float = param(0.10, "sigma of the centre-aware three-point consistency; pairs agree "
                                                "within sigma/2 [m]", 1e-5, 100.0)
     gmm_k: int = param(3, "neighbours of generalized mutual matching", 1, 50)
@@ -251,7 +252,7 @@ class RegorConfig:
     seed: int = param(51, "seed of the random generator; the same seed gives the same pose", 0, 2**31 - 1)
 
     @classmethod
-    def preset(cls, name: str) -> "RegorConfig":
+    def preset(cls, name: str) -> RegorConfig:
         """indoor: the paper's 3DMatch settings; outdoor: its KITTI settings; object: indoor scaled
         to table-top objects (about 0.1-0.5 m across). Deviations from the authors are marked in
         the field descriptions."""
@@ -284,7 +285,7 @@ class RegorConfig:
 
     # --- flat view: "section.field" names, used by ROS parameters, the CLI and YAML files ---
 
-    def parameters(self) -> Iterator[Tuple[str, Any, dataclasses.Field]]:
+    def parameters(self) -> Iterator[tuple[str, Any, dataclasses.Field]]:
         """Yield (dotted name, current value, dataclass field) for every leaf."""
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
@@ -294,10 +295,10 @@ class RegorConfig:
             else:
                 yield f.name, value, f
 
-    def to_flat(self) -> Dict[str, Any]:
+    def to_flat(self) -> dict[str, Any]:
         return {name: value for name, value, _ in self.parameters()}
 
-    def replace(self, overrides: Dict[str, Any]) -> "RegorConfig":
+    def replace(self, overrides: dict[str, Any]) -> RegorConfig:
         """A validated copy with ``{"section.field" or unique "field": value}`` applied."""
         flat = self.to_flat()
         for key, value in overrides.items():
@@ -310,7 +311,7 @@ class RegorConfig:
         new.validate()
         return new
 
-    def validate(self) -> "RegorConfig":
+    def validate(self) -> RegorConfig:
         """Raise ConfigError naming the first field that is out of range or inconsistent."""
         for name, value, f in self.parameters():
             if name in CHOICES and value not in CHOICES[name]:
@@ -345,7 +346,7 @@ class RegorConfig:
         return self
 
 
-def resolve_name(key: str, flat: Dict[str, Any]) -> str:
+def resolve_name(key: str, flat: dict[str, Any]) -> str:
     """Accept a dotted name or a leaf name that is unique across sections."""
     if key in flat:
         return key

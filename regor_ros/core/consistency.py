@@ -6,8 +6,6 @@ three-point consistency) is built from that length residual.
 """
 from __future__ import annotations
 
-from typing import Optional, Tuple
-
 import numpy as np
 
 from . import kernels
@@ -18,7 +16,7 @@ def _points(points: np.ndarray) -> np.ndarray:
 
 
 def compatibility(source: np.ndarray, target: np.ndarray, threshold: float,
-                  heights: Optional[Tuple[np.ndarray, float]] = None):
+                  heights: tuple[np.ndarray, float] | None = None):
     """SC2-PCR's three compatibility matrices of (n, 3) correspondences: soft
     max(0, 1 - r^2 / d^2) (n, n) float32, hard r < d (n, n) bool, and tight r < d / 2 with its
     rows bit-packed (n, ceil(n / 64)) uint64, for second_order_top_k; r is the length residual

@@ -1,8 +1,8 @@
 """Pose estimation: weighted Kabsch, the refinement loops, and the pose covariance."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -17,11 +17,11 @@ def agreeing(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: f
     return np.linalg.norm(transform_points(T, source) - target, axis=1) < threshold
 
 
-Clamp = Optional[Callable[[np.ndarray], np.ndarray]]  # brings (..., 3, 3) rotations inside a prior
+Clamp = Callable[[np.ndarray], np.ndarray] | None  # brings (..., 3, 3) rotations inside a prior
 
 
 def weighted_kabsch(source: np.ndarray, target: np.ndarray,
-                    weights: Optional[np.ndarray] = None, clamp: Clamp = None) -> np.ndarray:
+                    weights: np.ndarray | None = None, clamp: Clamp = None) -> np.ndarray:
     """Least-squares rigid transform(s) mapping source onto target.
 
     Works on (n, 3) or batched (b, n, 3) arrays; returns (4, 4) or (b, 4, 4). Reflections are

@@ -29,7 +29,6 @@ Features are unit vectors: inner product ranks them as the feature distance does
 from __future__ import annotations
 
 from contextlib import contextmanager
-from typing import Optional, Tuple
 
 import faiss
 import numpy as np
@@ -73,7 +72,7 @@ class CellTable:
         return len(self.bounds) - 1
 
     @classmethod
-    def filed(cls, quantizer, features: np.ndarray, cells: np.ndarray) -> "CellTable":
+    def filed(cls, quantizer, features: np.ndarray, cells: np.ndarray) -> CellTable:
         """Each row of ``features`` filed into its cell (rows of a cell in row order)."""
         ids = np.argsort(cells, kind="stable")
         bounds = np.concatenate([[0], np.cumsum(np.bincount(cells, minlength=quantizer.ntotal))])
@@ -88,7 +87,7 @@ class CellTable:
         cells[self.ids] = self._cell_of_table_row()
         return cells
 
-    def subset(self, rows: np.ndarray) -> "CellTable":
+    def subset(self, rows: np.ndarray) -> CellTable:
         """The table of ``rows`` (sorted) alone, in the same cells, numbered by position in ``rows``."""
         member = np.zeros(len(self.ids), dtype=bool)
         member[rows] = True
@@ -98,7 +97,7 @@ class CellTable:
                          self.table[keep],
                          np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
-    def search(self, queries: np.ndarray, k: int, probes: int) -> Tuple[np.ndarray, np.ndarray]:
+    def search(self, queries: np.ndarray, k: int, probes: int) -> tuple[np.ndarray, np.ndarray]:
         """The k most similar rows among each query's ``probes`` nearest cells: (ids (Q, k), -1
         where fewer were found; similarities (Q, k), -inf there), most similar first. The kernel's
         products run on its threads, so BLAS is kept to one (a registration already does that)."""
@@ -120,7 +119,7 @@ class FeatureIndex:
     the hundredth)."""
 
     def __init__(self, features: np.ndarray, exact_limit: int, probes: int, nearest_probes: int,
-                 saved: Optional[Tuple[np.ndarray, np.ndarray]] = None):
+                 saved: tuple[np.ndarray, np.ndarray] | None = None):
         """``saved``: what ``saved()`` returned for these features and limits (a cached map's
         trained inverted file, restored instead of trained again)."""
         features = np.ascontiguousarray(features, dtype=np.float32)
@@ -128,8 +127,8 @@ class FeatureIndex:
         self.size = n
         self.exact = n <= exact_limit
         self._limits = (exact_limit, probes, nearest_probes)
-        self._flat: Optional[np.ndarray] = None  # an exact index's features
-        self._cells: Optional[CellTable] = None
+        self._flat: np.ndarray | None = None  # an exact index's features
+        self._cells: CellTable | None = None
         if self.exact:
             self._flat = features
         elif saved is not None and len(saved[0]):
@@ -140,7 +139,7 @@ class FeatureIndex:
     def __len__(self) -> int:
         return self.size
 
-    def saved(self) -> Tuple[np.ndarray, np.ndarray]:
+    def saved(self) -> tuple[np.ndarray, np.ndarray]:
         """The trained inverted file without the features it files: (its cell centres (C, D),
         each row's cell (N,)); both empty for an exact index (rebuilt in no time)."""
         if self.exact:
@@ -148,7 +147,7 @@ class FeatureIndex:
         quantizer = self._cells.quantizer
         return quantizer.reconstruct_n(0, quantizer.ntotal), self._cells.cell_of_each_row()
 
-    def restricted(self, rows: np.ndarray, features: np.ndarray) -> "FeatureIndex":
+    def restricted(self, rows: np.ndarray, features: np.ndarray) -> FeatureIndex:
         """An index over ``rows`` (sorted) of this one, whose results are positions in ``rows``;
         ``features`` are those rows' features. Up to the exact limit a new exact index (its cost
         follows the rows); beyond it this index's own cells, filtered to the rows (no new
@@ -183,7 +182,7 @@ class FeatureIndex:
         nearest[rest], best[rest] = found[:, 0], found_similarity[:, 0]
         return nearest, best, candidates, similarity, None
 
-    def search(self, queries: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The k most similar rows of each query, most similar first: (index (Q, k) int64,
         similarity (Q, k) float32). An inverted file may find fewer than k (index -1, similarity
         -inf) when the probed cells hold fewer rows."""

@@ -6,7 +6,6 @@ is prepared once and reused for every source registered against it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Optional, Tuple
 
 import numpy as np
 import open3d as o3d
@@ -36,15 +35,15 @@ class PreparedCloud:
     index: FeatureIndex
     config: FeatureConfig  # the settings it was prepared with
     input_size: int        # finite points in the raw cloud
-    views: Tuple[RangeImage, ...] = ()  # what its sensor saw from each known viewpoint
-    map_view: Optional[MapView] = None  # a cloud with no viewpoint (a map): seen from any position
+    views: tuple[RangeImage, ...] = ()  # what its sensor saw from each known viewpoint
+    map_view: MapView | None = None  # a cloud with no viewpoint (a map): seen from any position
     normals_toward_sensors: bool = False  # its normals face its sensors (else the solver's signs)
 
     def __len__(self) -> int:
         return len(self.points)
 
     @property
-    def viewpoints(self) -> Optional[np.ndarray]:
+    def viewpoints(self) -> np.ndarray | None:
         """(k, 3) sensor positions in the cloud's frame, or None when unknown."""
         return np.array([v.viewpoint for v in self.views]) if self.views else None
 
@@ -55,18 +54,18 @@ class SeenCloud:
     position (a scan; several for scans fused along odometry), or one part and no viewpoint (a
     map, an accumulated submap)."""
 
-    parts: List[np.ndarray]              # (N_i, 3) each
-    viewpoints: Optional[np.ndarray]     # (len(parts), 3), or None when unknown
+    parts: list[np.ndarray]              # (N_i, 3) each
+    viewpoints: np.ndarray | None     # (len(parts), 3), or None when unknown
 
     @classmethod
-    def single(cls, points, viewpoint: Optional[np.ndarray]) -> "SeenCloud":
+    def single(cls, points, viewpoint: np.ndarray | None) -> SeenCloud:
         return cls([points], None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(1, 3))
 
     @property
     def points(self) -> np.ndarray:
         return np.vstack(self.parts)
 
-    def moved(self, T: np.ndarray) -> "SeenCloud":
+    def moved(self, T: np.ndarray) -> SeenCloud:
         """The same cloud in another frame (``T`` maps this frame into it)."""
         return SeenCloud([transform_points(T, p) for p in self.parts],
                          None if self.viewpoints is None else transform_points(T, self.viewpoints))
@@ -122,7 +121,7 @@ def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
     return np.abs((points - centroid) @ normal) < distance
 
 
-def check_viewpoint(viewpoint, name: str) -> Optional[np.ndarray]:
+def check_viewpoint(viewpoint, name: str) -> np.ndarray | None:
     """The sensor position as a (3,) array, or None when unknown; RegistrationError if malformed."""
     if viewpoint is None:
         return None
@@ -207,7 +206,7 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
         if trajectory is not None:
             raise RegistrationError(f"{name}: a trajectory is for a cloud without viewpoint (a map)")
         views = tuple(RangeImage.build(p, vp, config.range_image_resolution)
-                      for p, vp in zip(parts, cloud.viewpoints))
+                      for p, vp in zip(parts, cloud.viewpoints, strict=True))
     else:
         try:
             positions = None if trajectory is None else trajectory_positions(trajectory)

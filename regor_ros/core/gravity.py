@@ -22,7 +22,6 @@ sensor (the beams' blind circle), so the trajectory, not a floor fit, is the ref
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Optional
 
 import numpy as np
 
@@ -39,18 +38,18 @@ class GravityPrior:
     max_slope_deg: float
 
     @classmethod
-    def of(cls, config: GravityConfig) -> Optional["GravityPrior"]:
+    def of(cls, config: GravityConfig) -> GravityPrior | None:
         """The prior the configuration states, or None when either up direction is unknown."""
         source_up, target_up = parse_up(config.source_up), parse_up(config.target_up)
         if source_up is None or target_up is None:
             return None
         return cls(source_up, target_up, config.max_tilt, config.height_tolerance, config.max_slope)
 
-    def turned(self, rotation: np.ndarray) -> "GravityPrior":
+    def turned(self, rotation: np.ndarray) -> GravityPrior:
         """The prior for the source turned by ``rotation`` (3x3)."""
         return replace(self, source_up=rotation @ self.source_up)
 
-    def swapped(self) -> "GravityPrior":
+    def swapped(self) -> GravityPrior:
         """The prior for registering the target to the source."""
         return replace(self, source_up=self.target_up, target_up=self.source_up)
 

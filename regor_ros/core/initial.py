@@ -7,8 +7,8 @@ Its inliers seed regeneration.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -54,7 +54,7 @@ def select_seeds(confidence: np.ndarray, points: np.ndarray, radius: float,
 
 
 def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig,
-                    prior: Optional[GravityPrior] = None) -> np.ndarray:
+                    prior: GravityPrior | None = None) -> np.ndarray:
     """One pose per seed from its two-stage consensus set and local spectral matching; (S, 4, 4).
     With a gravity prior, compatible correspondences also agree in height."""
     n = len(src)
@@ -167,8 +167,8 @@ def _fittest(poses: list, fitnesses: list, plausible) -> np.ndarray:
 
 def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                   matches: FeatureMatches, cfg: InitialConfig, rng: np.random.Generator,
-                  plausible: Optional[Callable[[np.ndarray], bool]] = None,
-                  prior: Optional[GravityPrior] = None) -> InitialResult:
+                  plausible: Callable[[np.ndarray], bool] | None = None,
+                  prior: GravityPrior | None = None) -> InitialResult:
     """Run SC2-PCR++ on the correspondences (src[i], tgt[i]) and return T_m with its inliers.
 
     With ``plausible`` (a pose -> bool check, e.g. free space), FS-TCD's winner is the fittest

@@ -14,7 +14,6 @@ voxel subtends, so a coarsely sampled near wall still hides what lies behind it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -29,7 +28,7 @@ MAX_CACHED_VIEWS = 256    # trajectory views kept (about 0.26 MB each at 1 deg)
 
 def thinned(positions: np.ndarray, spacing: float) -> np.ndarray:
     """The positions in order, dropping each one closer than ``spacing`` to the last kept."""
-    kept: List[np.ndarray] = []
+    kept: list[np.ndarray] = []
     for p in positions:
         if not kept or np.linalg.norm(p - kept[-1]) >= spacing:
             kept.append(p)
@@ -54,12 +53,12 @@ class MapView:
     footprint: float         # their spacing [m]
     resolution_deg: float
     trajectory: np.ndarray   # (K, 3) the map's sensor positions, thinned; (0, 3) when unknown
-    trajectory_tree: Optional[cKDTree]  # over them; None when unknown
-    _cache: Dict[int, Tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
+    trajectory_tree: cKDTree | None  # over them; None when unknown
+    _cache: dict[int, tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
-              trajectory: Optional[np.ndarray] = None) -> "MapView":
+              trajectory: np.ndarray | None = None) -> MapView:
         positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, VIEW_SPACING * voxel)
         return cls(surface, voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)
@@ -70,7 +69,7 @@ class MapView:
                                   np.array([reach], dtype=np.float64))
         return RangeImage.build(self.surface[near], position, self.resolution_deg, self.footprint, reach)
 
-    def images(self, positions: np.ndarray, reach: float) -> List[RangeImage]:
+    def images(self, positions: np.ndarray, reach: float) -> list[RangeImage]:
         """The map seen from the candidate sensor positions (thinned as the trajectory is: scans
         fused along a slow walk see about the same), and from the map's own sensor poses nearest
         to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""

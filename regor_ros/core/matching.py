@@ -6,7 +6,6 @@ product; everything here ranks by similarity (dot product) and never takes the s
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -20,7 +19,7 @@ class FeatureMatches:
 
     target_index: np.ndarray        # (N,) nearest target keypoint in feature space
     similarity: np.ndarray          # (N,) its feature similarity (dot product)
-    mutual: Optional[np.ndarray]    # (N,) the source keypoint is also its target's nearest (if asked)
+    mutual: np.ndarray | None    # (N,) the source keypoint is also its target's nearest (if asked)
     candidate_rows: np.ndarray      # (R,) source keypoints that have candidate sets
     candidates: np.ndarray          # (R, K) their K most similar target keypoints (FS-TCD's set)
     candidate_distance: np.ndarray  # (R, K) and feature distances

@@ -4,7 +4,6 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Union
 
 import numpy as np
 
@@ -34,8 +33,8 @@ from .verification import Rival, assess, free_space_plausible, reverse_failure, 
 from .visibility import ORIGIN, VisibilityFigures
 from .visible_candidate import visible_candidate
 
-CloudInput = Union[np.ndarray, PreparedCloud]
-SourceInput = Union[np.ndarray, PreparedCloud, ScanSequence]
+CloudInput = np.ndarray | PreparedCloud
+SourceInput = np.ndarray | PreparedCloud | ScanSequence
 # the regenerated and the initial pose count as one when this close: no second refinement needed
 SAME_POSE_DEG = 2.0
 SAME_POSE_FRACTION = 0.5  # of the estimator's inlier threshold
@@ -74,23 +73,23 @@ class RegistrationResult:
     num_source_keypoints: int
     num_target_keypoints: int
     selected: str = "regeneration"  # which pose the estimator kept: "regeneration", "initial" or "candidate"
-    stage_sizes: Dict[str, int] = field(default_factory=dict)  # correspondences after each stage
-    timings: Dict[str, float] = field(default_factory=dict)    # seconds per stage
+    stage_sizes: dict[str, int] = field(default_factory=dict)  # correspondences after each stage
+    timings: dict[str, float] = field(default_factory=dict)    # seconds per stage
     attempts: int = 1  # registrations run: 1 + the acceptance.retries used
     visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
-    rivals: List[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
-    ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
-    evidence: Optional[Evidence] = None  # the pose's support against chance (core/evidence.py)
-    candidates: List[Candidate] = field(default_factory=list)  # this pose, then the other places found
+    rivals: list[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
+    ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
+    evidence: Evidence | None = None  # the pose's support against chance (core/evidence.py)
+    candidates: list[Candidate] = field(default_factory=list)  # this pose, then the other places found
 
     @property
-    def candidate_margin(self) -> Optional[float]:
+    def candidate_margin(self) -> float | None:
         """This pose's support over the best other place's (None when the search found no other)."""
         if len(self.candidates) < 2:
             return None
         return self.candidates[0].support / max(self.candidates[1].support, 1)
 
-    def summary(self) -> Dict:
+    def summary(self) -> dict:
         """The verdict and quality figures as plain values, for logs, status messages and JSON."""
         return {
             "accepted": self.accepted, "reason": self.reason,
@@ -118,7 +117,7 @@ class _FromCloud:
 FROM_CLOUD = _FromCloud()
 
 
-def prepare_cloud(points: Union[np.ndarray, ScanSequence], config: RegorConfig, name: str = "cloud", *,
+def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: str = "cloud", *,
                   viewpoint=None, trajectory=None) -> PreparedCloud:
     """Prepare a cloud once (e.g. a static map) to pass to register() many times.
 
@@ -137,7 +136,7 @@ def prepare_cloud(points: Union[np.ndarray, ScanSequence], config: RegorConfig, 
     return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
 
 
-def _raw(cloud: CloudInput, viewpoint, name: str) -> Union[SeenCloud, PreparedCloud]:
+def _raw(cloud: CloudInput, viewpoint, name: str) -> SeenCloud | PreparedCloud:
     """The input as a raw cloud with its viewpoints, or the prepared cloud whose viewpoints the
     given one must not contradict."""
     if isinstance(cloud, PreparedCloud):
@@ -152,7 +151,7 @@ def _raw(cloud: CloudInput, viewpoint, name: str) -> Union[SeenCloud, PreparedCl
     return SeenCloud.single(cloud, check_viewpoint(ORIGIN if viewpoint is FROM_CLOUD else viewpoint, name))
 
 
-def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: Optional[np.ndarray], name: str) -> None:
+def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: np.ndarray | None, name: str) -> None:
     own = cloud.viewpoints
     same = (own is None and viewpoint is None) or (
         own is not None and viewpoint is not None and len(own) == 1 and np.allclose(own[0], viewpoint))
@@ -173,7 +172,7 @@ def for_clouds_seen_from(config: RegorConfig, *viewpoints) -> RegorConfig:
     return config
 
 
-def _normals_toward_sensors(source: Union[SeenCloud, PreparedCloud], target: Union[SeenCloud, PreparedCloud],
+def _normals_toward_sensors(source: SeenCloud | PreparedCloud, target: SeenCloud | PreparedCloud,
                             config: RegorConfig) -> bool:
     """Whether both clouds' normals face their sensors (features.normals_toward_sensors): FPFH
     compares only under one convention. A prepared cloud's is fixed and a raw one follows it; two
@@ -199,7 +198,7 @@ def _normals_toward_sensors(source: Union[SeenCloud, PreparedCloud], target: Uni
     return toward
 
 
-def _prepared(cloud: Union[SeenCloud, PreparedCloud], config: RegorConfig, name: str,
+def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
               may_face_sensors: bool) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
@@ -209,9 +208,9 @@ def _prepared(cloud: Union[SeenCloud, PreparedCloud], config: RegorConfig, name:
     return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors)
 
 
-def register(source: SourceInput, target: CloudInput, config: Optional[RegorConfig] = None, *,
+def register(source: SourceInput, target: CloudInput, config: RegorConfig | None = None, *,
              source_viewpoint=FROM_CLOUD, target_viewpoint=FROM_CLOUD,
-             search_region: Optional[SearchRegion] = None) -> RegistrationResult:
+             search_region: SearchRegion | None = None) -> RegistrationResult:
     """Estimate T_target_source with no initial guess.
 
     ``source`` and ``target`` are (N, 3) arrays in metres or PreparedClouds; the source may also
@@ -276,7 +275,7 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
 
 
 def _check_reverse(result: RegistrationResult, source: PreparedCloud, target: PreparedCloud,
-                   config: RegorConfig, prior: Optional[GravityPrior]) -> None:
+                   config: RegorConfig, prior: GravityPrior | None) -> None:
     """Register target -> source; verification judges whether that gives the pose back."""
     reverse = _register_once(target, source, config, prior)
     reason = reverse_failure(result.transform, np.linalg.inv(reverse.transform), config.initial.inlier_threshold)
@@ -302,11 +301,11 @@ def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResu
 
 
 def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: RegorConfig,
-                   prior: Optional[GravityPrior]) -> RegistrationResult:
+                   prior: GravityPrior | None) -> RegistrationResult:
     """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate
     (``prior``: the gravity prior in these clouds' frames, or None)."""
     rng = np.random.default_rng(config.seed)
-    timings: Dict[str, float] = {}
+    timings: dict[str, float] = {}
     clock = time.perf_counter()
     start = clock
 
@@ -342,7 +341,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
         pick = rng.integers(0, len(seed_src), regen.presample)
         seed_src, seed_tgt = seed_src[pick], seed_tgt[pick]
     if len(seed_src):
-        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds), start=1):
+        for stage, (k, s) in enumerate(zip(regen.stage_neighbors, regen.stage_seeds, strict=True), start=1):
             seed_src, seed_tgt = regenerate(seed_src, seed_tgt, src_cloud, tgt_cloud, k, s, regen, rng)
             sizes[f"stage{stage}"] = len(seed_src)
     lap("regeneration")
@@ -387,14 +386,14 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-            prior: Optional[GravityPrior]):
+            prior: GravityPrior | None):
     est = config.estimation
     return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations,
                         prior and prior.clamp)
 
 
 def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-                  prior: Optional[GravityPrior]):
+                  prior: GravityPrior | None):
     """The point-to-plane refinement of the estimator's pose, and its inliers within tau_e. The
     refined pose is kept when it puts at least as many source keypoints within one voxel of the
     target as the estimator's: the judge is the data at the keypoints' resolution, so a near
@@ -410,7 +409,7 @@ def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config:
 
 
 def _visible_instead(refined, selected: str, candidates: list, source: PreparedCloud, target: PreparedCloud,
-                     config: RegorConfig, prior: Optional[GravityPrior], plausible):
+                     config: RegorConfig, prior: GravityPrior | None, plausible):
     """(refinement, selected): the estimator's refinement of the best other place the search found
     that passes the free-space check, in place of ``refined`` (core/visible_candidate.py), or
     ``refined`` itself when there is none."""
@@ -429,7 +428,7 @@ def _visible_instead(refined, selected: str, candidates: list, source: PreparedC
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,
-              config: RegorConfig, prior: Optional[GravityPrior]):
+              config: RegorConfig, prior: GravityPrior | None):
     """Kabsch on the regenerated correspondences, then the point-level refinement (inside the
     gravity prior's tilt cone when there is one); keeps the initial pose instead when it refines
     to more inliers (compare_initial_pose)."""

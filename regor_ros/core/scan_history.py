@@ -12,7 +12,6 @@ from __future__ import annotations
 import bisect
 from collections import deque
 from dataclasses import dataclass
-from typing import Deque, Dict, List, Optional, Tuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -35,11 +34,11 @@ class ScanHistory:
     """Recent scans (stamp, points) and odometry poses (stamp, T_odom_scan), both in stamp order."""
 
     def __init__(self, capacity: int):
-        self.scans: Deque[Tuple[float, np.ndarray]] = deque(maxlen=max(capacity, 1))
-        self._odometry_stamps: List[float] = []
-        self._odometry: List[np.ndarray] = []
+        self.scans: deque[tuple[float, np.ndarray]] = deque(maxlen=max(capacity, 1))
+        self._odometry_stamps: list[float] = []
+        self._odometry: list[np.ndarray] = []
 
-    def add_scan(self, stamp: float, points: np.ndarray, capacity: Optional[int] = None) -> None:
+    def add_scan(self, stamp: float, points: np.ndarray, capacity: int | None = None) -> None:
         """Keep the scan; ``capacity`` (when given) becomes the number of scans kept from now on."""
         if capacity is not None and capacity != self.scans.maxlen:
             self.scans = deque(self.scans, maxlen=max(capacity, 1))
@@ -53,7 +52,7 @@ class ScanHistory:
         drop = bisect.bisect_left(self._odometry_stamps, self._odometry_stamps[-1] - ODOMETRY_SECONDS)
         del self._odometry_stamps[:drop], self._odometry[:drop]
 
-    def pose_at(self, stamp: float, tolerance: float) -> Optional[np.ndarray]:
+    def pose_at(self, stamp: float, tolerance: float) -> np.ndarray | None:
         """T_odom_scan at ``stamp``: interpolated between the messages around it when they are at
         most 2 x tolerance apart, else the nearest within tolerance; None when there is none."""
         stamps = self._odometry_stamps
@@ -71,7 +70,7 @@ class ScanHistory:
         return self._odometry[min(near, key=lambda j: abs(stamps[j] - stamp))] if near else None
 
     def sequence(self, newest: float, limits: AccumulationLimits,
-                 viewpoint=ORIGIN) -> Tuple[Optional[ScanSequence], Dict]:
+                 viewpoint=ORIGIN) -> tuple[ScanSequence | None, dict]:
         """The scans to fuse, ending with the one stamped ``newest``, and what was decided (for
         status). None when fewer than two scans can be fused: register the newest alone.
         ``viewpoint``: the sensor in each scan's frame."""

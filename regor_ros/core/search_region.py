@@ -27,7 +27,7 @@ class SearchRegion:
     radius: float       # metres
 
     @classmethod
-    def checked(cls, centre, radius) -> "SearchRegion":
+    def checked(cls, centre, radius) -> SearchRegion:
         c = np.asarray(centre, dtype=np.float64)
         if c.shape != (3,) or not np.isfinite(c).all():
             raise RegistrationError(f"search region: centre must be three finite numbers, got {centre!r}")

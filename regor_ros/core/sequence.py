@@ -8,8 +8,8 @@ registered is the newest scan's.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import List, Sequence
 
 import numpy as np
 
@@ -58,9 +58,9 @@ class ScanSequence:
         if viewpoint is None:
             raise RegistrationError("scan sequence: the scans' viewpoint must be known (they are sensor scans)")
         newest_from_odom = np.linalg.inv(poses[-1])
-        parts: List[np.ndarray] = []
+        parts: list[np.ndarray] = []
         viewpoints = []
-        for i, (scan, pose) in enumerate(zip(self.scans, poses)):
+        for i, (scan, pose) in enumerate(zip(self.scans, poses, strict=True)):
             T = newest_from_odom @ pose
             parts.append(transform_points(T, clean_points(scan, f"scan sequence: scan {i}")))
             viewpoints.append(transform_points(T, viewpoint[None])[0])

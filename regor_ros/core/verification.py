@@ -21,7 +21,6 @@ and the calibration (regor-calibrate-gate), sees all of them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Optional, Tuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -48,8 +47,8 @@ class Rival:
 
     inlier_ratio: float          # its inliers / the pose's
     feature_ratio: float         # its agreeing feature matches / the pose's
-    violation: Optional[float]   # its worst free-space figure
-    opposite_sides: Optional[float]  # its matched surface seen from opposite sides
+    violation: float | None   # its worst free-space figure
+    opposite_sides: float | None  # its matched surface seen from opposite sides
     distance_deg: float          # its rotation from the pose after refinement
 
 
@@ -58,12 +57,12 @@ class Verdict:
     accepted: bool
     reason: str                     # why it was not accepted; empty when accepted
     visibility: VisibilityFigures
-    rivals: List[Rival] = field(default_factory=list)
-    ambiguity: Optional[float] = None  # support ratio of the best rival that passes the visibility checks
-    evidence: Optional[Evidence] = None
+    rivals: list[Rival] = field(default_factory=list)
+    ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
+    evidence: Evidence | None = None
 
 
-def pose_slack(uncertainty: Optional[Tuple[float, float]], sigmas: float):
+def pose_slack(uncertainty: tuple[float, float] | None, sigmas: float):
     """How far the pose may misplace a point at distance r from the source's origin, as a
     function of r: ``sigmas`` standard deviations of ``uncertainty`` (translation [m], turn
     [rad]) as sigma_t + r sigma_turn (None: no allowance)."""
@@ -74,8 +73,8 @@ def pose_slack(uncertainty: Optional[Tuple[float, float]], sigmas: float):
 
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                       gate: AcceptanceConfig, matched_index: Optional[np.ndarray] = None,
-                       uncertainty: Optional[Tuple[float, float]] = None) -> VisibilityFigures:
+                       gate: AcceptanceConfig, matched_index: np.ndarray | None = None,
+                       uncertainty: tuple[float, float] | None = None) -> VisibilityFigures:
     """The visibility figures of T_target_source; ``matched_index`` lists the target keypoints of
     its inlier pairs. Each side is a cloud's sensors (their range images), or, for a cloud with no
     viewpoint (a map), the map seen from the other cloud's sensors placed by the pose. With the
@@ -138,8 +137,8 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inliers: int,
            fitness: float, matches: tuple, num_feature_inliers: int, covariance: np.ndarray,
-           uncertainty: Tuple[float, float], overlap_index: np.ndarray, support: Evidence, config: RegorConfig,
-           prior: Optional[GravityPrior] = None) -> Verdict:
+           uncertainty: tuple[float, float], overlap_index: np.ndarray, support: Evidence, config: RegorConfig,
+           prior: GravityPrior | None = None) -> Verdict:
     """Run every check on the pose T_target_source; the reason names the first that fails.
     ``matches`` are the feature matches (source, target points), ``num_feature_inliers`` how many
     of them the pose brings within initial.inlier_threshold; ``overlap_index`` lists the target
@@ -152,7 +151,7 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
     reason = _structural_failure(num_inliers, fitness, covariance, gate)
     if not reason and prior is not None:
         reason = gravity_failure(prior, T, source, target)
-    rivals: List[Rival] = []
+    rivals: list[Rival] = []
     ambiguous = None
     if not reason:  # the rivals cost a refinement each: only for poses that may be published
         rivals = symmetric_rivals(T, num_feature_inliers, matches, target.points[overlap_index],
@@ -198,7 +197,7 @@ def half_turns(points: np.ndarray) -> np.ndarray:
 
 def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, overlap: np.ndarray,
                      source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-                     prior: Optional[GravityPrior] = None) -> List[Rival]:
+                     prior: GravityPrior | None = None) -> list[Rival]:
     """The pose turned about each symmetry axis of the overlap and refined; the inliers of the
     pose and its rivals are counted on the same RIVAL_POINTS source keypoints (for speed). A truly
     symmetric scene also gives the rival feature support: symmetric places look alike. Under a
@@ -225,7 +224,7 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
     return rivals
 
 
-def ambiguity(rivals: List[Rival], max_violation: float, max_opposite: float) -> Optional[float]:
+def ambiguity(rivals: list[Rival], max_violation: float, max_opposite: float) -> float | None:
     """How well the best rival that is distinct from the pose and passes the visibility checks
     explains the clouds, relative to the pose: the lesser of its point and feature support ratios
     (None when there is no such rival)."""
@@ -262,7 +261,7 @@ def _chance_failure(support: Evidence, gate: AcceptanceConfig) -> str:
 
 
 def _evidence_failure(num_feature_inliers: int, visibility: VisibilityFigures,
-                      ambiguous: Optional[float], gate: AcceptanceConfig) -> str:
+                      ambiguous: float | None, gate: AcceptanceConfig) -> str:
     """The checks that tell a right pose from a wrong one (thresholds calibrated on held-out places)."""
     if visibility.both_sides:
         name, needed, why = "min_feature_inliers", gate.min_feature_inliers, ""

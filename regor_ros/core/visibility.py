@@ -23,7 +23,6 @@ per bin. It is read conservatively, so that a correct pose is not blamed for sen
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
@@ -58,7 +57,7 @@ class RangeImage:
 
     @classmethod
     def build(cls, points: np.ndarray, viewpoint, resolution_deg: float, footprint: float = 0.0,
-              max_range: float = np.inf) -> "RangeImage":
+              max_range: float = np.inf) -> RangeImage:
         """From the returns ``points`` seen from ``viewpoint``. With ``footprint`` (the spacing of
         downsampled points, a map's) each point covers the bins its footprint subtends, so a
         near surface sampled coarsely still hides what lies behind it; returns beyond
@@ -126,12 +125,12 @@ class VisibilityFigures:
     matched surface points seen from opposite sides (None when a viewpoint it needs is unknown or
     too few points count)."""
 
-    source_violation: Optional[float]  # target keypoints inside the source sensor's free space
-    target_violation: Optional[float]  # source keypoints inside the target sensor's free space
-    opposite_sides: Optional[float] = None  # matched points the two sensors saw from opposite sides
+    source_violation: float | None  # target keypoints inside the source sensor's free space
+    target_violation: float | None  # source keypoints inside the target sensor's free space
+    opposite_sides: float | None = None  # matched points the two sensors saw from opposite sides
     source_seen: int = 0               # target keypoints that landed on the source's seen bins
     target_seen: int = 0
-    map_seen: Optional[float] = None   # against a map: fraction of the scan's keypoints on bins the map fills
+    map_seen: float | None = None   # against a map: fraction of the scan's keypoints on bins the map fills
 
     @property
     def both_sides(self) -> bool:
@@ -139,7 +138,7 @@ class VisibilityFigures:
         return self.source_violation is not None and self.target_violation is not None
 
     @property
-    def worst(self) -> Optional[float]:
+    def worst(self) -> float | None:
         """The larger free-space fraction (None when neither side is known)."""
         known = [v for v in (self.source_violation, self.target_violation) if v is not None]
         return max(known) if known else None
@@ -151,12 +150,12 @@ class VisibilityFigures:
                 "both_sides": self.both_sides}
 
 
-def _fraction(seen: int, inside: int, min_seen: int) -> Optional[float]:
+def _fraction(seen: int, inside: int, min_seen: int) -> float | None:
     return inside / seen if seen >= min_seen else None
 
 
 def opposite_sides(sensor_a: np.ndarray, sensor_b: np.ndarray, points: np.ndarray,
-                   normals: np.ndarray, min_seen: int) -> Optional[float]:
+                   normals: np.ndarray, min_seen: int) -> float | None:
     """Fraction of surface points (with unoriented normals) that the two sensors, in the points'
     frame, see from opposite sides; views at grazing angles do not count. A sensor is a (3,)
     position or one (N, 3) position per point."""

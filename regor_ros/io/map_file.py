@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -31,7 +31,7 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "regor_ros"
 
 
-def read_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
+def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
     """(stamps (K,), poses (K, 4, 4)) of a TUM trajectory: ``t tx ty tz qx qy qz qw`` per line
     (Hamilton quaternion, scalar last), ``#`` comments; raises CloudFileError."""
     path = Path(path)
@@ -46,11 +46,12 @@ def read_trajectory(path) -> Tuple[np.ndarray, np.ndarray]:
     norms = np.linalg.norm(rows[:, 4:8], axis=1)
     if (norms < 1e-6).any():
         raise CloudFileError(f"{path}: line {int(np.argmax(norms < 1e-6)) + 1} has a zero quaternion")
-    poses = np.array([to_matrix(R, t) for R, t in zip(Rotation.from_quat(rows[:, 4:8]).as_matrix(), rows[:, 1:4])])
+    rotations = Rotation.from_quat(rows[:, 4:8]).as_matrix()
+    poses = np.array([to_matrix(R, t) for R, t in zip(rotations, rows[:, 1:4], strict=True)])
     return rows[:, 0], poses
 
 
-def write_trajectory(path, poses: np.ndarray, stamps: Optional[np.ndarray] = None) -> None:
+def write_trajectory(path, poses: np.ndarray, stamps: np.ndarray | None = None) -> None:
     """Write (K, 4, 4) poses as a TUM trajectory (stamps 0..K-1 unless given)."""
     stamps = np.arange(len(poses), dtype=np.float64) if stamps is None else stamps
     quaternions = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
@@ -58,7 +59,7 @@ def write_trajectory(path, poses: np.ndarray, stamps: Optional[np.ndarray] = Non
                header="t x y z qx qy qz qw")
 
 
-def cache_paths(map_file: Path, cache_dir: Optional[Path]) -> List[Path]:
+def cache_paths(map_file: Path, cache_dir: Path | None) -> list[Path]:
     """Where the map's cache may be, in order: beside the map (unless a folder is given), then the
     cache folder (named after the map's absolute path, so two maps never share a file)."""
     folder = cache_dir or default_cache_dir()
@@ -97,7 +98,7 @@ def _is_trajectory(path: Path) -> bool:
     return rows.shape[1] == 8 and bool(np.allclose(np.linalg.norm(rows[:, 4:8], axis=1), 1.0, atol=1e-3))
 
 
-def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> Tuple[float, float]:
+def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> tuple[float, float]:
     """(median keypoints within the normal radius of a keypoint, what a line sampled at the voxel
     size has): a normal, and so a feature, needs a surface around the point."""
     keypoints = points[np.unique(np.floor(points / features.voxel_size).astype(np.int64), axis=0,
@@ -111,7 +112,7 @@ def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> Tuple[fl
 @dataclass
 class MapFromFile:
     prepared: PreparedCloud
-    info: Dict[str, object] = field(default_factory=dict)  # for status: the files and what the cache did
+    info: dict[str, object] = field(default_factory=dict)  # for status: the files and what the cache did
 
 
 def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bool = True,

@@ -9,7 +9,6 @@ gate's reason) or a malformed cloud arrived, ERROR when the last input could not
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Optional
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -23,10 +22,10 @@ class Health:
     preparing_map: bool = False
     last_error: str = ""                   # why the last input could not be registered
     last_bad_input: str = ""               # the last malformed cloud since the last registration
-    last_summary: Optional[dict] = None    # RegistrationResult.summary() of the last registration
-    counters: Dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
-    map_info: Dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
-    inputs: Dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
+    last_summary: dict | None = None    # RegistrationResult.summary() of the last registration
+    counters: dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
+    map_info: dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
+    inputs: dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
     lifecycle: str = "unconfigured"        # the node's lifecycle state, or why configure failed
     map_from_file: bool = False            # the target is a map file, not target_cloud
 

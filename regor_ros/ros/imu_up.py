@@ -10,7 +10,6 @@ acceleration a tilts it by atan(a / g), which gravity.max_tilt must cover.
 from __future__ import annotations
 
 from collections import deque
-from typing import Deque, Optional, Tuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -22,9 +21,9 @@ class ImuUp:
     """Recent IMU readings and the up direction they give in the source cloud's frame."""
 
     def __init__(self):
-        self._readings: Deque[Tuple[float, Optional[np.ndarray], np.ndarray]] = deque(maxlen=MAX_MESSAGES)
+        self._readings: deque[tuple[float, np.ndarray | None, np.ndarray]] = deque(maxlen=MAX_MESSAGES)
 
-    def add(self, stamp: float, orientation_xyzw: Optional[np.ndarray], acceleration: np.ndarray) -> None:
+    def add(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray) -> None:
         """One message: its stamp, its orientation quaternion or None (not reported), and its
         linear acceleration. Kept as given: only the one before a scan is ever turned into up."""
         usable = orientation_xyzw is not None and np.isfinite(orientation_xyzw).all() and \
@@ -32,7 +31,7 @@ class ImuUp:
         self._readings.append((stamp, orientation_xyzw if usable else None,
                                np.asarray(acceleration, dtype=np.float64)))
 
-    def up_at(self, stamp: float, window: float, R_sensor_imu: np.ndarray) -> Tuple[Optional[np.ndarray], str]:
+    def up_at(self, stamp: float, window: float, R_sensor_imu: np.ndarray) -> tuple[np.ndarray | None, str]:
         """(unit up in the source cloud's frame, or None; where it came from) for a scan at
         ``stamp``: the orientation of the last message up to it, else the mean acceleration of
         the messages in the ``window`` seconds before it; ``R_sensor_imu`` is the IMU's

@@ -11,7 +11,7 @@ best effort and volatile (what any publisher can match), so it shows in the node
 """
 from __future__ import annotations
 
-from typing import Callable, Optional
+from collections.abc import Callable
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
@@ -29,7 +29,7 @@ def fixed_profile(kind: str) -> QoSProfile:
                       reliability=ReliabilityPolicy.RELIABLE, durability=durability)
 
 
-def offered_profile(publisher_profiles) -> Optional[QoSProfile]:
+def offered_profile(publisher_profiles) -> QoSProfile | None:
     """The profile that matches every one of the publishers' and gets the most from them; None
     when there is no publisher."""
     profiles = list(publisher_profiles)
@@ -42,7 +42,7 @@ def offered_profile(publisher_profiles) -> Optional[QoSProfile]:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
-def describe(profile: Optional[QoSProfile]) -> str:
+def describe(profile: QoSProfile | None) -> str:
     if profile is None:
         return "waiting for a publisher"
     reliability = "reliable" if profile.reliability == ReliabilityPolicy.RELIABLE else "best effort"
@@ -61,7 +61,7 @@ class InputSubscription:
     def __init__(self, node, msg_type, topic: str, callback: Callable, kind: str):
         self._node, self._type, self._topic, self._callback = node, msg_type, topic, callback
         self.auto = kind == "auto"
-        self.profile: Optional[QoSProfile] = None   # the publishers' offer followed (auto), or the fixed one
+        self.profile: QoSProfile | None = None   # the publishers' offer followed (auto), or the fixed one
         self._subscription = None
         self._subscribe(UNDECIDED if self.auto else fixed_profile(kind))
         if self.auto:

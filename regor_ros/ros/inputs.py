@@ -9,7 +9,7 @@ caller holds one lock around every call.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional, Union
+from typing import Any
 
 import numpy as np
 
@@ -25,27 +25,27 @@ class Cloud:
 @dataclass(frozen=True)
 class PrepareMap:
     key: tuple                 # what the map is made from (InputBuffer.map_key)
-    target: Optional[Cloud]    # the target message, or None for a map file
+    target: Cloud | None    # the target message, or None for a map file
 
 
 @dataclass(frozen=True)
 class Register:
     source: Cloud
-    target: Optional[Cloud]    # None against the prepared map
+    target: Cloud | None    # None against the prepared map
 
 
-Job = Union[PrepareMap, Register]
+Job = PrepareMap | Register
 
 
 class InputBuffer:
     """The newest source and target, the serials registered, and a relocalize call waiting."""
 
     def __init__(self):
-        self.source: Optional[Cloud] = None
-        self.target: Optional[Cloud] = None
+        self.source: Cloud | None = None
+        self.target: Cloud | None = None
         self.serials = {"source": 0, "target": 0}
         self.done = {"source": 0, "target": 0}     # serials last registered
-        self.relocalize_after: Optional[int] = None  # a relocalize call waits for a source after this serial
+        self.relocalize_after: int | None = None  # a relocalize call waits for a source after this serial
 
     def store(self, which: str, header, stamp: float, points: np.ndarray, mode: str) -> bool:
         """Keep the newest cloud of ``which`` ("source" or "target"); True when it replaced one that
@@ -61,7 +61,7 @@ class InputBuffer:
             self.target = cloud
         return stale
 
-    def map_key(self, settings, features) -> Optional[tuple]:
+    def map_key(self, settings, features) -> tuple | None:
         """What the map must be prepared from now: the file, or the newest target message (with
         the target viewpoint), and the feature settings; None while there is no map."""
         if settings.map_file:
@@ -70,7 +70,7 @@ class InputBuffer:
             return None
         return "topic", self.target.serial, settings.viewpoints()[1], features
 
-    def next_job(self, settings, features, prepared_key, map_ready: bool) -> Optional[Job]:
+    def next_job(self, settings, features, prepared_key, map_ready: bool) -> Job | None:
         """The worker's next job, or None. ``prepared_key`` is what the map in use was made from
         and ``map_ready`` whether there is one."""
         if settings.mode == "map":

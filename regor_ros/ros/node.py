@@ -17,7 +17,6 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Optional, Tuple
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
@@ -93,7 +92,7 @@ class RegisterNode(LifecycleNode):
                       "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
         self.health = Health(counters=self.stats, map_from_file=bool(self.settings.map_file))
         self._entities = []      # (destroy, entity) of what configure created, for cleanup
-        self._worker: Optional[threading.Thread] = None
+        self._worker: threading.Thread | None = None
         self._active = False
         self._stopping = False
         self._own_poses = deque(maxlen=OWN_POSES_KEPT)  # (stamp, position) of poses published
@@ -107,10 +106,10 @@ class RegisterNode(LifecycleNode):
     def _reset(self) -> None:
         """The inputs, the map and the answers of one configured lifetime."""
         self._inputs = InputBuffer()
-        self._prepared_target: Optional[PreparedCloud] = None
+        self._prepared_target: PreparedCloud | None = None
         self._prepared_key = None  # what the prepared map was made from (_map_key)
         self._map_frame = ""       # and the frame it is in
-        self._guess: Optional[PoseWithCovarianceStamped] = None  # in force until a pose is accepted
+        self._guess: PoseWithCovarianceStamped | None = None  # in force until a pose is accepted
         self._answer = (0, False, "")  # (source serial, accepted, what happened) of the last registration
         self._history = ScanHistory(self._history_capacity())  # scans and odometry, for accumulation
         self._warned = {}  # kind of bad input -> when it was last logged
@@ -347,7 +346,7 @@ class RegisterNode(LifecycleNode):
 
     # --- the worker ---
 
-    def _next_job(self) -> Optional[Job]:
+    def _next_job(self) -> Job | None:
         if not self._active:
             return None
         return self._inputs.next_job(self.settings, self.config.features, self._prepared_key,
@@ -373,7 +372,7 @@ class RegisterNode(LifecycleNode):
                     self._answer = (job.source.serial, accepted, what)
                     self._lock.notify_all()
 
-    def _prepare_map(self, key, tgt: Optional[Cloud], config, settings) -> None:
+    def _prepare_map(self, key, tgt: Cloud | None, config, settings) -> None:
         """Prepare the map once per message or file (and feature settings); queries wait meanwhile."""
         try:
             if settings.map_file:
@@ -401,7 +400,7 @@ class RegisterNode(LifecycleNode):
         if prepared is not None and self._active:  # for RViz: the map as the node uses it
             self._publish_map(prepared, settings.map_frame)
 
-    def _use_map(self, prepare, key, frame: str) -> Optional[PreparedCloud]:
+    def _use_map(self, prepare, key, frame: str) -> PreparedCloud | None:
         """Run ``prepare`` (-> prepared map, info) and make its map the one registered against;
         the old map stays in use until then. None when the node stopped meanwhile."""
         self.health.preparing_map = True
@@ -463,7 +462,7 @@ class RegisterNode(LifecycleNode):
         response.result = LoadMap.Response.RESULT_SUCCESS
         return response
 
-    def _guess_region(self, guess: Optional[PoseWithCovarianceStamped], target_frame: str, settings):
+    def _guess_region(self, guess: PoseWithCovarianceStamped | None, target_frame: str, settings):
         """The initial guess as a search region, or None; a guess in another frame is dropped with a warning."""
         if guess is None:
             return None
@@ -488,7 +487,7 @@ class RegisterNode(LifecycleNode):
                                                     settings.viewpoints()[0])
         return (src.points if sequence is None else sequence), info
 
-    def _register(self, src: Cloud, tgt: Optional[Cloud], config, settings, guess) -> Tuple[bool, str]:
+    def _register(self, src: Cloud, tgt: Cloud | None, config, settings, guess) -> tuple[bool, str]:
         """Register the source against the pair's target or (map mode) the prepared map; (pose
         accepted, what happened)."""
         source_viewpoint, target_viewpoint = settings.viewpoints()

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Dict, Tuple
 
 import numpy as np
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -176,7 +175,7 @@ PRESET_FIELD = param("indoor", "preset the core parameters start from: indoor, o
                       "(read only; set at start, e.g. in the parameter file)")
 
 
-def declare_parameters(node) -> Tuple[RegorConfig, NodeSettings]:
+def declare_parameters(node) -> tuple[RegorConfig, NodeSettings]:
     """Declare every parameter and return the configuration they hold (overrides applied)."""
     preset = node.declare_parameter("preset", "indoor", _descriptor("preset", PRESET_FIELD, "")).value
     if preset not in PRESETS:
@@ -193,7 +192,7 @@ def declare_parameters(node) -> Tuple[RegorConfig, NodeSettings]:
     return config, settings
 
 
-def make_settings(values: Dict) -> NodeSettings:
+def make_settings(values: dict) -> NodeSettings:
     """NodeSettings from a dict of values, checking choices and ranges."""
     for name, choices in CHOICES.items():
         if name in values and values[name] not in choices:
@@ -216,7 +215,7 @@ def make_settings(values: Dict) -> NodeSettings:
 
 
 def apply_changes(config: RegorConfig, settings: NodeSettings,
-                  changes: Dict) -> Tuple[RegorConfig, NodeSettings]:
+                  changes: dict) -> tuple[RegorConfig, NodeSettings]:
     """The configuration after a batch of parameter changes; raises ConfigError with the reason."""
     node_names = {f.name for f in dataclasses.fields(NodeSettings)}
     node_changes = {k: v for k, v in changes.items() if k in node_names}

@@ -11,14 +11,13 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Optional
 
 PROFILE_VARIABLES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")  # Fast DDS 3, 2
 FAST_DDS_RMWS = ("rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
 PROFILE_NAME = "fastdds_large_data.xml"
 
 
-def use_large_data_profile() -> Optional[str]:
+def use_large_data_profile() -> str | None:
     """Point Fast DDS at the package's profile, before rclpy.init; the path used, or None when
     the user set a profile, another middleware runs, or the profile is not installed."""
     if any(os.environ.get(v) for v in PROFILE_VARIABLES):

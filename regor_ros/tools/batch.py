@@ -18,7 +18,7 @@ import sys
 import time
 from collections import OrderedDict, defaultdict
 from pathlib import Path
-from typing import Dict, List, Optional, Set, TextIO
+from typing import TextIO
 
 from ..core import PRESETS, ConfigError, RegorConfig
 from .batch_list import ListError, PairRow, read_pairs
@@ -35,8 +35,8 @@ class ResultFile:
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        self.done: Set[str] = set()
-        self.errors: Set[str] = set()  # rows with an error, this run's and before
+        self.done: set[str] = set()
+        self.errors: set[str] = set()  # rows with an error, this run's and before
         if self.path.is_file():
             self._keep_whole_rows()
         self._file: TextIO = open(self.path, "a", encoding="utf-8")
@@ -57,7 +57,7 @@ class ResultFile:
             if row.get("error"):
                 self.errors.add(str(row["id"]))
 
-    def write(self, row: Dict) -> None:
+    def write(self, row: dict) -> None:
         self._file.write(json.dumps(row) + "\n")
         self._file.flush()
         os.fsync(self._file.fileno())
@@ -75,15 +75,15 @@ class Dispatcher:
     regard for the clouds a worker holds. A pair is only preferred for a worker, never tied to
     it: if the worker dies, the pair runs elsewhere."""
 
-    def __init__(self, rows: List[PairRow], cache_capacity: int):
-        self.pending: "OrderedDict[str, PairRow]" = OrderedDict((r.id, r) for r in rows)
-        self._by_cloud: Dict[tuple, Set[str]] = defaultdict(set)
+    def __init__(self, rows: list[PairRow], cache_capacity: int):
+        self.pending: OrderedDict[str, PairRow] = OrderedDict((r.id, r) for r in rows)
+        self._by_cloud: dict[tuple, set[str]] = defaultdict(set)
         for row in rows:
             for cloud in row.clouds():
                 self._by_cloud[cloud].add(row.id)
         self._position = {row.id: i for i, row in enumerate(rows)}  # ties go to the earlier row
         self._capacity = cache_capacity
-        self._recent: Dict[str, "OrderedDict[tuple, None]"] = defaultdict(OrderedDict)  # worker -> clouds
+        self._recent: dict[str, OrderedDict[tuple, None]] = defaultdict(OrderedDict)  # worker -> clouds
 
     def __len__(self) -> int:
         return len(self.pending)
@@ -131,7 +131,7 @@ class Progress:
         self.stream.flush()
 
 
-def _failed_row(row: PairRow, exc: BaseException) -> Dict:
+def _failed_row(row: PairRow, exc: BaseException) -> dict:
     """The row of a pair whose task itself failed: it killed every worker that ran it (out of
     memory, a crash in a native library) or raised what register_row does not expect."""
     from distributed import KilledWorker
@@ -142,15 +142,15 @@ def _failed_row(row: PairRow, exc: BaseException) -> Dict:
     return {**row_identity(row), "accepted": False, "error": error}
 
 
-def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, object], client,
-              cache_capacity: int, progress: Progress, threads: Optional[int] = None) -> Dict[str, int]:
+def run_batch(rows: list[PairRow], results: ResultFile, overrides: dict[str, object], client,
+              cache_capacity: int, progress: Progress, threads: int | None = None) -> dict[str, int]:
     """Register the rows not yet in ``results`` on the client's workers, each task with
     ``threads`` compiled-kernel threads (None: the worker's own); returns counts."""
     from distributed import as_completed
     counts = dict.fromkeys(COUNTED, 0)
     finished = as_completed()
-    running: Dict[object, tuple] = {}  # future -> (row, the worker it was sent to)
-    load: Dict[str, int] = defaultdict(int)
+    running: dict[object, tuple] = {}  # future -> (row, the worker it was sent to)
+    load: dict[str, int] = defaultdict(int)
     dispatcher = Dispatcher([r for r in rows if r.id not in results.done], cache_capacity)
 
     def keep_workers_busy() -> int:
@@ -189,7 +189,7 @@ def run_batch(rows: List[PairRow], results: ResultFile, overrides: Dict[str, obj
     return counts
 
 
-def open_client(workers: int, scheduler: Optional[str]):
+def open_client(workers: int, scheduler: str | None):
     """A client of the cluster at ``scheduler``, or of a new local one on loopback with
     ``workers`` worker processes, each registering one pair at a time."""
     import logging

@@ -13,7 +13,6 @@ import json
 import tempfile
 import time
 from pathlib import Path
-from typing import Dict, List
 
 import numpy as np
 
@@ -26,13 +25,13 @@ from .bench_results import write_results
 CACHE_CLOUDS = 16  # regor-batch's default
 
 
-def same_result(row: Dict, result) -> bool:
+def same_result(row: dict, result) -> bool:
     """Whether an output row holds exactly the pose and verdict register() gave."""
     return (not row.get("error") and row["accepted"] == result.accepted and row["reason"] == result.reason
             and np.array_equal(np.array(row["transform"]), result.transform))
 
 
-def candidate_list(maps: Path, folder: Path) -> Dict[str, np.ndarray]:
+def candidate_list(maps: Path, folder: Path) -> dict[str, np.ndarray]:
     """Write every within-sequence pair of query scans to ``folder/pairs.jsonl``; returns the truth
     (T_target_source) of each pair id."""
     truths, lines = {}, []
@@ -48,13 +47,14 @@ def candidate_list(maps: Path, folder: Path) -> Dict[str, np.ndarray]:
     return truths
 
 
-def _scored(name: str, seconds: float, accepted: List[bool], correct: List[bool], **extra) -> Dict:
+def _scored(name: str, seconds: float, accepted: list[bool], correct: list[bool], **extra) -> dict:
     return {"run": name, "pairs": len(accepted), "seconds": seconds, "pairs_per_s": len(accepted) / seconds,
-            "published": sum(accepted), "published_correct": sum(a and c for a, c in zip(accepted, correct)),
-            "published_wrong": sum(a and not c for a, c in zip(accepted, correct)), **extra}
+            "published": sum(accepted),
+            "published_correct": sum(a and c for a, c in zip(accepted, correct, strict=True)),
+            "published_wrong": sum(a and not c for a, c in zip(accepted, correct, strict=True)), **extra}
 
 
-def run_batch_scaling(maps: Path, workers: List[int], config: RegorConfig, overrides: Dict, out: Path,
+def run_batch_scaling(maps: Path, workers: list[int], config: RegorConfig, overrides: dict, out: Path,
                       header: str) -> str:
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
@@ -103,7 +103,7 @@ FIELDS = ["run", "workers", "pairs", "seconds", "start_seconds", "pairs_per_s", 
           "published", "published_correct", "published_wrong"]
 
 
-def _plot(results: List[Dict], path: Path) -> None:
+def _plot(results: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -13,7 +13,6 @@ import csv
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
 
 from ..core import PRESETS, ConfigError, parse_viewpoint
 
@@ -29,8 +28,8 @@ class PairRow:
     id: str
     source: str                  # as written in the list
     target: str
-    source_path: Optional[Path]  # resolved; None when the row has an error
-    target_path: Optional[Path]
+    source_path: Path | None  # resolved; None when the row has an error
+    target_path: Path | None
     source_viewpoint: object     # a parse_viewpoint result: (x, y, z), or None for unknown
     target_viewpoint: object
     preset: str
@@ -50,7 +49,7 @@ def _viewpoint_text(value) -> str:
     return str(value).strip() or "auto"
 
 
-def _row(fields: Dict[str, object], line: int, folder: Path, default_preset: str) -> PairRow:
+def _row(fields: dict[str, object], line: int, folder: Path, default_preset: str) -> PairRow:
     text = {k: ("" if fields.get(k) is None else str(fields.get(k)).strip())
             for k in ("id", "source", "target", "preset")}
     row_id = text["id"] or str(line)
@@ -98,7 +97,7 @@ def _csv_rows(path: Path):
             yield reader.line_num, {k: "" if v is None else v for k, v in fields.items()}
 
 
-def read_pairs(path, scans=None, default_preset: str = "indoor") -> List[PairRow]:
+def read_pairs(path, scans=None, default_preset: str = "indoor") -> list[PairRow]:
     """The rows of a pair list (``.csv``, or JSON lines for any other name)."""
     path = Path(path).expanduser()
     if not path.is_file():

@@ -13,7 +13,6 @@ import socket
 import threading
 import time
 from collections import OrderedDict
-from typing import Dict, Optional
 
 import numba
 
@@ -28,7 +27,7 @@ class PreparedClouds:
 
     def __init__(self, capacity: int):
         self.capacity = capacity
-        self._clouds: "OrderedDict[tuple, PreparedCloud]" = OrderedDict()
+        self._clouds: OrderedDict[tuple, PreparedCloud] = OrderedDict()
         self._lock = threading.Lock()  # a worker may run pairs in several threads
 
     @staticmethod
@@ -51,7 +50,7 @@ class PreparedClouds:
         return cloud, False
 
 
-_clouds: Optional[PreparedClouds] = None  # this process's, made by the first pair it registers
+_clouds: PreparedClouds | None = None  # this process's, made by the first pair it registers
 
 
 def _process_clouds(capacity: int) -> PreparedClouds:
@@ -61,18 +60,18 @@ def _process_clouds(capacity: int) -> PreparedClouds:
     return _clouds
 
 
-def row_identity(row: PairRow) -> Dict:
+def row_identity(row: PairRow) -> dict:
     """The fields that say which pair an output row is for."""
     return {"id": row.id, "source": row.source, "target": row.target, "preset": row.preset}
 
 
-def result_row(result) -> Dict:
+def result_row(result) -> dict:
     """A registration's output row: the pose, its covariance, the verdict and the gate's figures."""
     return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(), **result.summary()}
 
 
-def register_row(row: PairRow, overrides: Dict[str, object], cache_capacity: int,
-                 threads: Optional[int] = None) -> Dict:
+def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int,
+                 threads: int | None = None) -> dict:
     """The output row of one pair; any failure becomes the row's ``error``, never an exception.
     ``threads``: the compiled kernels' threads for this task (None: as many as the process has)."""
     start = time.perf_counter()

@@ -12,7 +12,6 @@ import os
 import platform
 import sys
 from pathlib import Path
-from typing import List, Optional
 
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
 EVIDENCE_COLUMNS = ["surface_agreement", "independent_agreeing", "log10_false_alarms", "candidate_margin"]
@@ -37,7 +36,7 @@ def gate_columns(figures: dict) -> dict:
             "candidate_margin": figures["candidate_margin"]}
 
 
-def selected(name: str, name_filter: Optional[str]) -> bool:
+def selected(name: str, name_filter: str | None) -> bool:
     """Whether ``name`` contains one of the comma-separated ``name_filter`` strings (all names
     are selected without a filter): --pairs."""
     return not name_filter or any(part in name for part in name_filter.split(","))
@@ -75,7 +74,7 @@ def header(title: str, argv) -> str:
             f"Command: `{command(argv)}`  \n")
 
 
-def write_results(out: Path, stem: str, report: str, rows: List[dict], fields: List[str], plot) -> None:
+def write_results(out: Path, stem: str, report: str, rows: list[dict], fields: list[str], plot) -> None:
     """<stem>.md, .csv and .png in ``out``; ``plot(rows, path)`` draws the picture."""
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{stem}.md").write_text(report)

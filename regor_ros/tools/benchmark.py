@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import List, Optional
 
 from ..core import ConfigError, RegorConfig, warm_up
 from .batch_benchmark import run_batch_scaling
@@ -106,7 +105,7 @@ def main(argv=None) -> int:
     return run_pairs(args, argv, _methods(args.methods, METHODS, parser), parser)
 
 
-def _methods(requested: Optional[str], available, parser) -> List[str]:
+def _methods(requested: str | None, available, parser) -> list[str]:
     """The methods named by --methods (all available ones when not given); an unknown or
     unsupported name is an error, not silently dropped."""
     if requested is None:
@@ -125,7 +124,7 @@ def _map_main(args, argv, parser) -> int:
         overrides = {**(LEVEL_MOUNTED if args.level else {}), **parse_overrides(args.set)}
         config = RegorConfig.preset("outdoor").replace(overrides)
     except ConfigError as exc:
-        raise SystemExit(f"regor-bench: {exc}")
+        raise SystemExit(f"regor-bench: {exc}") from None
     about = ("Outdoor preset; success: RE < 5 deg and TE < 60 cm against "
              "the sequence's SLAM pose. Regor prepares the map once (its time is the preparation "
              "column) and registers each query against it; KISS-Matcher is given the scan and the map "

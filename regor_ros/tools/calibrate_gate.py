@@ -41,7 +41,6 @@ import argparse
 import csv
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -61,12 +60,12 @@ class Sample:
     structural: bool         # passes the structural checks and those against chance
     feature_inliers: int
     violations: tuple           # (source, target) free-space figures; None for a side not checked
-    opposite: Optional[float] = None  # matched surface seen from opposite sides
+    opposite: float | None = None  # matched surface seen from opposite sides
     rivals: tuple = ()          # Rival fields of the symmetric rivals
     run: str = ""               # which registration: seed, pair, file
 
     @property
-    def violation(self) -> Optional[float]:
+    def violation(self) -> float | None:
         known = [v for v in self.violations if v is not None]
         return max(known) if known else None
 
@@ -87,7 +86,7 @@ class Sample:
         """The run registers a cloud of that place (either cloud, for a cross-place run)."""
         return any(same_place(p, family) for p in self.places)
 
-    def blinded(self, keep_source: bool) -> "Sample":
+    def blinded(self, keep_source: bool) -> Sample:
         """This run as if the target's viewpoint (and the source's too, unless ``keep_source``)
         were unknown: those free-space figures and the opposite-sides figure (it needs both) are
         gone; with none left the rivals lose theirs as well."""
@@ -96,7 +95,7 @@ class Sample:
         rivals = tuple((a, b, None, None, e) for a, b, _, _, e in self.rivals)
         return replace(self, violations=(None, None), opposite=None, rivals=rivals)
 
-    def ambiguity(self, max_violation: float) -> Optional[float]:
+    def ambiguity(self, max_violation: float) -> float | None:
         return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
 
 
@@ -106,7 +105,7 @@ def _rivals(text: str) -> tuple:
                  (item.split(":") for item in text.split(";") if item))
 
 
-def _number(text: str) -> Optional[float]:
+def _number(text: str) -> float | None:
     return float(text) if text not in ("", "None", "nan") else None
 
 
@@ -117,7 +116,7 @@ def beyond_chance(row: dict, gate) -> bool:
             and (false_alarms is None or false_alarms <= np.log10(gate.max_false_alarms)))
 
 
-def load_samples(paths: List[Path], method: str) -> List[Sample]:
+def load_samples(paths: list[Path], method: str) -> list[Sample]:
     samples = []
     for path in paths:
         for row in csv.DictReader(open(path)):
@@ -137,7 +136,7 @@ def load_samples(paths: List[Path], method: str) -> List[Sample]:
     return samples
 
 
-Thresholds = Tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
+Thresholds = tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
 THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
 
 
@@ -145,7 +144,7 @@ class Runs:
     """Samples as arrays, so that a threshold setting is judged on all of them at once (the fit tries
     ~18,000 settings per fold); the rivals' ambiguity is worked out once per violation threshold."""
 
-    def __init__(self, samples: List[Sample]):
+    def __init__(self, samples: list[Sample]):
         self.samples = samples
         self.correct = np.array([s.correct for s in samples], dtype=bool)
         self.unfitted = np.array([s.passes_unfitted for s in samples], dtype=bool)
@@ -177,7 +176,7 @@ class Runs:
                 len(self.samples))
 
 
-def score(samples: List[Sample], thresholds: Thresholds):
+def score(samples: list[Sample], thresholds: Thresholds):
     """(correct registrations, published correct, published wrong, registrations)."""
     return Runs(samples).score(thresholds)
 
@@ -188,7 +187,7 @@ def preset_thresholds(kind: str) -> Thresholds:
             gate.min_feature_inliers_partial)
 
 
-def checked_runs(samples: List[Sample]) -> Tuple[List[Sample], List[Sample]]:
+def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:
     """(the runs checked from both sides: the full thresholds' fit; the runs the partial feature
     threshold judges: those not checked from both sides, and every full run again with the
     target's viewpoint dropped and with both dropped)."""
@@ -198,7 +197,7 @@ def checked_runs(samples: List[Sample]) -> Tuple[List[Sample], List[Sample]]:
     return full, partial
 
 
-def fit(samples: List[Sample], kind: str) -> Thresholds:
+def fit(samples: list[Sample], kind: str) -> Thresholds:
     """The thresholds for samples of one kind, by the module's rule: the three of a full check on
     the runs checked from both sides, then the partial feature threshold on the others and on
     every run with its viewpoints dropped."""
@@ -215,14 +214,14 @@ def fit(samples: List[Sample], kind: str) -> Thresholds:
         runs, safe, lambda f: (violation, min_features, max_ambiguity, f))
 
 
-def strictest_features(runs: "Runs", safe: List[int], thresholds) -> int:
+def strictest_features(runs: Runs, safe: list[int], thresholds) -> int:
     """The highest of the ``safe`` feature thresholds (ascending, none publishing a wrong pose)
     that still publishes as many correct runs as the lowest; ``thresholds(f)`` the setting at f."""
     most = runs.score(thresholds(safe[0]))[1]
     return max(f for f in safe if runs.score(thresholds(f))[1] == most)
 
 
-def stable_fit(samples: List[Sample], kind: str, fitter=fit) -> Thresholds:
+def stable_fit(samples: list[Sample], kind: str, fitter=fit) -> Thresholds:
     """Each threshold at its strictest among ``fitter``'s fits on all ``samples`` and on the
     samples with each of their places left out in turn: a threshold is relaxed only as far as the
     fit still goes with any one place left out, so a gain that rests on one place's runs (a fit's
@@ -231,17 +230,17 @@ def stable_fit(samples: List[Sample], kind: str, fitter=fit) -> Thresholds:
     nothing to fit on without it, and no vote."""
     rests = [[s for s in samples if not s.involves(family)] for family in families(samples)]
     fits = [fitter(samples, kind)] + [fitter(rest, kind) for rest in rests if not all(s.correct for s in rest)]
-    violation, min_features, max_ambiguity, min_partial = zip(*fits)
+    violation, min_features, max_ambiguity, min_partial = zip(*fits, strict=True)
     return min(violation), max(min_features), min(max_ambiguity), max(min_partial)
 
 
-def fit_alone(samples: List[Sample], kind: str) -> Thresholds:
+def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
     """The feature thresholds fitted so that each alone stops every wrong pose the unfitted checks
     let through (no help from free space or ambiguity, which keep the preset's values): a fit
     that cannot lean on a second fitted threshold. Reported beside the joint fit."""
     violation, _, max_ambiguity, _ = preset_thresholds(kind)
 
-    def above(runs: List[Sample]) -> int:
+    def above(runs: list[Sample]) -> int:
         wrong = [s.feature_inliers for s in runs if not s.correct and s.passes_unfitted]
         return int(next((f for f in FEATURE_GRID if f > max(wrong, default=-1)), FEATURE_GRID[-1]))
 
@@ -250,7 +249,7 @@ def fit_alone(samples: List[Sample], kind: str) -> Thresholds:
     return violation, min_features, max_ambiguity, max(min_features, above(partial))
 
 
-def _fit_full(samples: List[Sample], kind: str):
+def _fit_full(samples: list[Sample], kind: str):
     """(max_free_space_violation, min_feature_inliers, max_ambiguity) for runs checked from both
     sides; the preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
@@ -270,9 +269,9 @@ def _fit_full(samples: List[Sample], kind: str):
     return v, strictest_features(runs, safe, lambda f: (v, f, a, f)), a
 
 
-def families(samples: List[Sample]) -> List[str]:
+def families(samples: list[Sample]) -> list[str]:
     """Places, with places that may be one (a prefix of another) merged."""
-    out: List[str] = []
+    out: list[str] = []
     for name in sorted({p for s in samples for p in s.places}, key=lambda p: (len(p), p)):
         if not any(same_place(name, f) for f in out):
             out.append(name)
@@ -285,7 +284,7 @@ def _row(name: str, thresholds: Thresholds, figures) -> str:
             + " | ".join(map(str, (figures[3], figures[0], figures[1], figures[2]))) + " |")
 
 
-def _blind_row(name: str, thresholds: Thresholds, held: List[Sample]) -> str:
+def _blind_row(name: str, thresholds: Thresholds, held: list[Sample]) -> str:
     """The held-out runs again without the target's viewpoint, and without either."""
     map_scan = score([s.blinded(True) for s in held], thresholds)
     map_map = score([s.blinded(False) for s in held], thresholds)
@@ -293,7 +292,7 @@ def _blind_row(name: str, thresholds: Thresholds, held: List[Sample]) -> str:
             f"{map_map[1]} / {map_map[2]} |")
 
 
-def folds(samples: List[Sample], fitter=stable_fit) -> Dict[str, list]:
+def folds(samples: list[Sample], fitter=stable_fit) -> dict[str, list]:
     """Leave one place out, per kind: [(place, its runs, the thresholds fitted without them)]."""
     out = {}
     for kind in sorted({s.kind for s in samples}):
@@ -306,12 +305,12 @@ def folds(samples: List[Sample], fitter=stable_fit) -> Dict[str, list]:
     return out
 
 
-def in_sample(samples: List[Sample], fitter=stable_fit) -> Dict[str, Thresholds]:
+def in_sample(samples: list[Sample], fitter=stable_fit) -> dict[str, Thresholds]:
     """Per kind, the thresholds ``fitter`` gives on all of its runs."""
     return {kind: fitter([s for s in samples if s.kind == kind], kind) for kind in sorted({s.kind for s in samples})}
 
 
-def headline(samples: List[Sample], folded: Dict[str, list], inside: Dict[str, Thresholds]) -> str:
+def headline(samples: list[Sample], folded: dict[str, list], inside: dict[str, Thresholds]) -> str:
     """Per kind: what the gate publishes on places it was not fitted on (``folded``: folds()),
     against the in-sample fit (``inside``: in_sample() with the same fitter)."""
     lines = ["| kind | held-out runs | correct | published correct, held out | published WRONG, held out | "
@@ -324,7 +323,7 @@ def headline(samples: List[Sample], folded: Dict[str, list], inside: Dict[str, T
     return "\n".join(lines)
 
 
-def unfitted_share(samples: List[Sample]) -> str:
+def unfitted_share(samples: list[Sample]) -> str:
     """Per kind: how many wrong poses the checks that are not fitted stop, and how many are left
     for the fitted thresholds to stop (the fewer, the less the gate rests on a fit)."""
     lines = ["| kind | wrong poses | stopped by unfitted checks | left to the fitted thresholds (most feature inliers "
@@ -338,19 +337,19 @@ def unfitted_share(samples: List[Sample]) -> str:
     return "\n".join(lines)
 
 
-def wrong_held_out(folded: Dict[str, list]) -> str:
+def wrong_held_out(folded: dict[str, list]) -> str:
     """Each wrong pose published with its place held out, and its figures: what a check missed."""
     lines = ["| kind | held out | run | feature inliers | free space (source, target) |", "|---|---|---|---|---|"]
     for kind, kind_folds in folded.items():
         for family, held, thresholds in kind_folds:
-            for s, shown in zip(held, Runs(held).published(thresholds)):
+            for s, shown in zip(held, Runs(held).published(thresholds), strict=True):
                 if shown and not s.correct:
                     lines.append(f"| {kind} | {family} | {s.run} | {s.feature_inliers} | "
                                  + ", ".join("-" if v is None else f"{v:.3f}" for v in s.violations) + " |")
     return "\n".join(lines) if len(lines) > 2 else "None."
 
 
-def fold_spread(single: Dict[str, list], stable: Dict[str, list]) -> str:
+def fold_spread(single: dict[str, list], stable: dict[str, list]) -> str:
     """Per kind and threshold, the range of values the folds fitted, by each rule: a threshold
     whose fitted value moves with the place left out rests on that place (a weak check)."""
     def span(kind_folds, i) -> str:
@@ -364,7 +363,7 @@ def fold_spread(single: Dict[str, list], stable: Dict[str, list]) -> str:
     return "\n".join(lines)
 
 
-def report(samples: List[Sample]) -> str:
+def report(samples: list[Sample]) -> str:
     folded, inside = folds(samples), in_sample(samples)
     alone = headline(samples, folds(samples, fit_alone), in_sample(samples, fit_alone))
     edge_folds = folds(samples, fit)

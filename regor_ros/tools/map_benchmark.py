@@ -24,7 +24,6 @@ import resource
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -65,10 +64,10 @@ def _peak_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # kB on Linux
 
 
-def load_poses(path: Path) -> Dict[int, np.ndarray]:
+def load_poses(path: Path) -> dict[int, np.ndarray]:
     """A TUM file whose first column numbers the scans, as {scan number: 4x4}."""
     stamps, poses = read_trajectory(path)
-    return {int(k): T for k, T in zip(stamps, poses)}
+    return {int(k): T for k, T in zip(stamps, poses, strict=True)}
 
 
 @dataclass
@@ -78,7 +77,7 @@ class Query:
     kind: str                 # scan, or submap (scans merged around one)
     scan: np.ndarray
     truth: np.ndarray         # T_map_scan
-    history: Optional[ScanSequence]  # the scans received up to it with odometry; None for a submap
+    history: ScanSequence | None  # the scans received up to it with odometry; None for a submap
 
     def cloud(self, which: str):
         return {"single": self.scan, "thinned": self.scan[::THINNING], "sequence": self.history}[which]
@@ -108,13 +107,13 @@ def place_of(sequence: str) -> str:
     return sequence.split("_", 1)[1]
 
 
-def _score(T: np.ndarray, truths: List[np.ndarray]) -> tuple:
+def _score(T: np.ndarray, truths: list[np.ndarray]) -> tuple:
     """(success, rotation error, translation error) against the nearest of the true poses."""
     best = min(truths, key=lambda G: translation_error(T, G))
     return is_success(T, best, "outdoor"), rotation_error_deg(T, best), translation_error(T, best)
 
 
-def enlarged(cloud: np.ndarray, trajectory: Optional[np.ndarray], others: List[str]):
+def enlarged(cloud: np.ndarray, trajectory: np.ndarray | None, others: list[str]):
     """(cloud, trajectory) with every other place's map beside it, TILE_SPACING apart along x: a
     target several times larger where the true place is still inside, so chance support grows."""
     clouds, trajectories = [cloud], [trajectory]
@@ -127,7 +126,7 @@ def enlarged(cloud: np.ndarray, trajectory: Optional[np.ndarray], others: List[s
     return np.vstack(clouds), (np.concatenate(known) if len(known) == len(trajectories) else None)
 
 
-def _run_map(job) -> List[dict]:
+def _run_map(job) -> list[dict]:
     """One method on every query against one map (in a child process): the map's own queries,
     then every other sequence's (cross-map: no true pose). Under ``stress`` the map is enlarged
     with the other places' maps instead (``enlarged``), its own queries also go in thinned, and
@@ -187,20 +186,20 @@ def _median(values) -> float:
     return float(np.median(values)) if len(values) else float("nan")
 
 
-def _groups(rows: List[dict], *keys) -> Dict[tuple, List[dict]]:
-    groups: Dict[tuple, List[dict]] = {}
+def _groups(rows: list[dict], *keys) -> dict[tuple, list[dict]]:
+    groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault(tuple(r[k] for k in keys), []).append(r)
     return groups
 
 
-def _published(group: List[dict]) -> tuple:
+def _published(group: list[dict]) -> tuple:
     """(published correct, published wrong)."""
     right = sum(r["accepted"] is True and r["success"] for r in group)
     return right, sum(r["accepted"] is True for r in group) - right
 
 
-def map_report(rows: List[dict], header: str) -> str:
+def map_report(rows: list[dict], header: str) -> str:
     same = [r for r in rows if r["set"] == "same"]
     cross = [r for r in rows if r["set"] == "cross"]
     lines = [header, "", "## Queries against their own map", "",
@@ -252,8 +251,8 @@ def map_report(rows: List[dict], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, header: str,
-             name_filter: Optional[str] = None, stress: bool = False) -> str:
+def run_maps(folder: Path, methods: list[str], config: RegorConfig, out: Path, header: str,
+             name_filter: str | None = None, stress: bool = False) -> str:
     """The map of every sequence under ``folder`` (whose name contains one of the comma-separated
     ``name_filter``) with every method, against its own queries and every other sequence's;
     writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
@@ -279,7 +278,7 @@ def run_maps(folder: Path, methods: List[str], config: RegorConfig, out: Path, h
     return report
 
 
-def _plot_maps(rows: List[dict], path: Path) -> None:
+def _plot_maps(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -304,7 +303,7 @@ def _plot_maps(rows: List[dict], path: Path) -> None:
 
 # --- scaling: one real map tiled ---
 
-def tile_poses(tiles: int) -> List[np.ndarray]:
+def tile_poses(tiles: int) -> list[np.ndarray]:
     """Where each of ``tiles`` copies of a map goes: on a grid, each turned about the vertical."""
     side = int(np.ceil(np.sqrt(tiles)))
     poses = []
@@ -382,7 +381,7 @@ SCALING_FIELDS = ["tiles", "map_points", "map_keypoints", "exact_search", "map_s
                   "median_matching_seconds", "queries", "correct", "published_correct", "peak_memory_gb"]
 
 
-def run_scaling(folder: Path, tiles: List[int], config: RegorConfig, out: Path, header: str) -> str:
+def run_scaling(folder: Path, tiles: list[int], config: RegorConfig, out: Path, header: str) -> str:
     rows = []
     for count in tiles:
         rows.append(_run_scaling(folder, count, config))
@@ -404,7 +403,7 @@ def run_scaling(folder: Path, tiles: List[int], config: RegorConfig, out: Path, 
     return report
 
 
-def _plot_scaling(rows: List[dict], path: Path) -> None:
+def _plot_scaling(rows: list[dict], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -11,7 +11,6 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import List, Optional
 
 import numpy as np
 import rclpy
@@ -43,13 +42,13 @@ class PairClient(Node):
                                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.source_pub = self.create_publisher(PointCloud2, "source_cloud", 10)
         self.target_pub = self.create_publisher(PointCloud2, "target_cloud", self.target_qos)
-        self.poses: List[PoseStamped] = []
-        self.pose_arrivals: List[float] = []  # time.monotonic() when each pose arrived
-        self.markers: List[MarkerArray] = []
-        self.statuses: List[dict] = []
+        self.poses: list[PoseStamped] = []
+        self.pose_arrivals: list[float] = []  # time.monotonic() when each pose arrived
+        self.markers: list[MarkerArray] = []
+        self.statuses: list[dict] = []
         self.create_subscription(PoseStamped, "pose", self._on_pose, 10)
         self.create_subscription(MarkerArray, "correspondences", self.markers.append, 10)
-        self.candidates: List[PoseArray] = []
+        self.candidates: list[PoseArray] = []
         self.create_subscription(PoseArray, "candidates", self.candidates.append, 10)
         self.create_subscription(String, "status", lambda m: self.statuses.append(json.loads(m.data)), 10)
 
@@ -74,7 +73,7 @@ class PairClient(Node):
         self.spin_until(lambda: False, DISCOVERY_SETTLE_S)  # let the node match us too
         return found
 
-    def publish(self, source: Optional[PointCloud2] = None, target: Optional[PointCloud2] = None):
+    def publish(self, source: PointCloud2 | None = None, target: PointCloud2 | None = None):
         if target is not None:
             self.target_pub.publish(target)
         if source is not None:

@@ -17,7 +17,6 @@ import traceback
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -60,7 +59,7 @@ CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation
               *EVIDENCE_COLUMNS, "error"]
 
 
-def load_pairs(folder: Path, name_filter: Optional[str]):
+def load_pairs(folder: Path, name_filter: str | None):
     """Each selected pair; its index in pairs.json seeds the pair's random motion, so a filtered
     run moves a pair as a full run does."""
     listing = json.loads((folder / "pairs.json").read_text())
@@ -84,13 +83,13 @@ class Pair:
     kind: str
     src: np.ndarray
     tgt: np.ndarray
-    T_gt: Optional[np.ndarray]              # T_target_source; None: different places, no true pose
-    src_viewpoint: Optional[np.ndarray]     # sensor position in the cloud's frame; None = unknown
-    tgt_viewpoint: Optional[np.ndarray]
-    src_up: Optional[np.ndarray] = None     # up direction in the cloud's frame; None = unknown
-    tgt_up: Optional[np.ndarray] = None
+    T_gt: np.ndarray | None              # T_target_source; None: different places, no true pose
+    src_viewpoint: np.ndarray | None     # sensor position in the cloud's frame; None = unknown
+    tgt_viewpoint: np.ndarray | None
+    src_up: np.ndarray | None = None     # up direction in the cloud's frame; None = unknown
+    tgt_up: np.ndarray | None = None
 
-    def moved(self, seed: Optional[int]) -> "Pair":
+    def moved(self, seed: int | None) -> Pair:
         """The pair with its source (and the source's viewpoint and up) moved by the seeded motion."""
         if seed is None:
             return self
@@ -101,7 +100,7 @@ class Pair:
                                    src_viewpoint=viewpoint,
                                    src_up=None if self.src_up is None else M[:3, :3] @ self.src_up)
 
-    def swapped(self) -> "Pair":
+    def swapped(self) -> Pair:
         """The target as the source and the source as the target; no true pose."""
         return dataclasses.replace(self, src=self.tgt, tgt=self.src, T_gt=None,
                                    src_viewpoint=self.tgt_viewpoint, tgt_viewpoint=self.src_viewpoint,
@@ -115,7 +114,7 @@ class Pair:
                                "gravity.target_up": " ".join(f"{v:.9f}" for v in self.tgt_up)})
 
 
-def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
+def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> list[dict]:
     """Every method on one pair; a crash counts as a failure with its error recorded."""
     name, kind, src, tgt, T_gt = pair.name, pair.kind, pair.src, pair.tgt, pair.T_gt
     t0 = time.perf_counter()
@@ -156,7 +155,7 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> List[dict]:
     return rows
 
 
-def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
+def cross_place_pairs(pairs: list[Pair], seed: int | None) -> list[Pair]:
     """Each distinct source against one target of every other place of its kind, and each
     distinct target, as the source, against one source of every other place (a different one for
     each motion seed, round robin). There is no true pose, so any accepted pose is wrong. Both
@@ -165,7 +164,7 @@ def cross_place_pairs(pairs: List[Pair], seed: Optional[int]) -> List[Pair]:
     return _crossed(pairs, seed, "", "") + _crossed(swapped, seed, " (target)", " (source)")
 
 
-def _crossed(pairs: List[Pair], seed: Optional[int], source_role: str, target_role: str) -> List[Pair]:
+def _crossed(pairs: list[Pair], seed: int | None, source_role: str, target_role: str) -> list[Pair]:
     """Each distinct source cloud against one target cloud of every other place; the role labels
     name which cloud of each pair was used when it is not the usual one."""
     sources, targets = {}, defaultdict(dict)
@@ -190,7 +189,7 @@ def _mean(values) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def summarise(rows: List[dict]) -> Dict:
+def summarise(rows: list[dict]) -> dict:
     """Per (method, kind) figures, kind "all" included; recall also as mean and spread over seeds."""
     groups = defaultdict(list)
     for r in rows:
@@ -235,7 +234,7 @@ def _fmt(value, spec: str) -> str:
     return "–" if value is None or (isinstance(value, float) and np.isnan(value)) else format(value, spec)
 
 
-def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -> str:
+def markdown(summary: dict, rows: list[dict], methods: list[str], header: str) -> str:
     kinds = sorted({k for _, k in summary if k != "all"}) + ["all"]
     lines = [header, "", "| kind | method | RR | successes | RE ° | TE cm | IP % | IN | INR % | "
              "median s (reg) | p90 s | published correct / WRONG |", "|" + "---|" * 12]
@@ -278,7 +277,7 @@ def markdown(summary: Dict, rows: List[dict], methods: List[str], header: str) -
     return "\n".join(lines) + "\n"
 
 
-def plots(summary: Dict, methods: List[str], out: Path) -> None:
+def plots(summary: dict, methods: list[str], out: Path) -> None:
     """Recall per kind, median time and correct final correspondences, as one PNG at ``out``."""
     import matplotlib
     matplotlib.use("Agg")
@@ -305,7 +304,7 @@ def plots(summary: Dict, methods: List[str], out: Path) -> None:
     plt.close(fig)
 
 
-def run_pairs(args, argv, methods: List[str], parser) -> int:
+def run_pairs(args, argv, methods: list[str], parser) -> int:
     """The pairs (or cross-place) benchmark of regor-bench's arguments; prints and writes the report."""
     for folder in args.data:
         if not (folder / "pairs.json").is_file():
@@ -321,7 +320,7 @@ def run_pairs(args, argv, methods: List[str], parser) -> int:
         parser.error(str(exc))
     runs = [(seed, pair) for seed in seeds
             for pair in (cross_place_pairs(pairs, seed) if args.mismatched else pairs)]
-    rows: List[dict] = []
+    rows: list[dict] = []
     start = time.perf_counter()
     total = len(runs)
     done = 0

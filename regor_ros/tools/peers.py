@@ -7,8 +7,8 @@ its own features from the raw clouds at the same voxel size; it is an optional d
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Dict, Optional
 
 import numpy as np
 import open3d as o3d
@@ -21,17 +21,17 @@ class MethodResult:
     transform: np.ndarray
     seconds: float                          # registration time, features excluded
     includes_features: bool = False         # True when ``seconds`` covers its own features
-    final: Optional[tuple] = None           # (source, target) final correspondences
-    initial: Optional[tuple] = None         # (source, target) initial correspondences
-    accepted: Optional[bool] = None         # the method's own quality verdict, if it has one
-    figures: Optional[dict] = None          # Regor's verdict figures (RegistrationResult.summary())
+    final: tuple | None = None           # (source, target) final correspondences
+    initial: tuple | None = None         # (source, target) initial correspondences
+    accepted: bool | None = None         # the method's own quality verdict, if it has one
+    figures: dict | None = None          # Regor's verdict figures (RegistrationResult.summary())
 
 
 NO_PRIOR = {"gravity.source_up": "unknown", "gravity.target_up": "unknown"}
 PLANE = {"estimation.plane_refinement": True}
 
 
-def _regor_variant(overrides: Dict) -> Callable:
+def _regor_variant(overrides: dict) -> Callable:
     def run(src: PreparedCloud, tgt: PreparedCloud, raw_src, raw_tgt, config: RegorConfig, seed: int):
         cfg = config.replace({**overrides, "seed": seed})
         # retries re-grid the raw source, seen from where the prepared one was
@@ -101,7 +101,7 @@ def kiss_matcher(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> 
     return MethodResult(T, seconds, includes_features=True, accepted=valid)
 
 
-METHODS: Dict[str, Callable] = {
+METHODS: dict[str, Callable] = {
     "regor": _regor_variant({}),
     "regor-1stage": _regor_variant({"stage_neighbors": [20], "stage_seeds": [500]}),
     "sc2pcr++": _regor_variant({"stage_neighbors": [], "stage_seeds": []}),

@@ -12,7 +12,6 @@ import cProfile
 import pstats
 import time
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -31,12 +30,12 @@ class Profiled:
 
     def __init__(self, name: str):
         self.name = name
-        self.timings: List[Dict[str, float]] = []
+        self.timings: list[dict[str, float]] = []
         self.correct = 0
         self.accepted = 0
         self.profile = cProfile.Profile()
 
-    def run(self, register_call, truth: Optional[np.ndarray], kind: str) -> None:
+    def run(self, register_call, truth: np.ndarray | None, kind: str) -> None:
         self.profile.enable()
         result = register_call()
         self.profile.disable()
@@ -71,8 +70,8 @@ def _short(path: str) -> str:
     return Path(path).name
 
 
-def profile_pairs(folders: List[Path], name_filter: Optional[str]) -> List[Profiled]:
-    groups: Dict[str, Profiled] = {}
+def profile_pairs(folders: list[Path], name_filter: str | None) -> list[Profiled]:
+    groups: dict[str, Profiled] = {}
     for folder in folders:
         for pair in load_pairs(folder, name_filter):
             moved = pair.moved(PROFILE_SEED)
@@ -101,7 +100,7 @@ def profile_maps(folder: Path) -> tuple:
     return [g for g in groups.values() if g.timings], maps
 
 
-def run_profile(folders: List[Path], maps: Optional[Path], name_filter: Optional[str], out: Path, argv) -> str:
+def run_profile(folders: list[Path], maps: Path | None, name_filter: str | None, out: Path, argv) -> str:
     groups = profile_pairs(folders, name_filter)
     prepared_maps = []
     if maps is not None:

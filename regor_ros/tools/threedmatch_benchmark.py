@@ -16,7 +16,6 @@ import json
 import time
 from collections import defaultdict
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -44,7 +43,7 @@ def pair_name(entry: dict) -> str:
     return f"3dmatch_{scene}_{entry['j']}_{entry['i']}"
 
 
-def load_list(folder: Path, sample: Optional[int], name_filter: Optional[str]) -> List[dict]:
+def load_list(folder: Path, sample: int | None, name_filter: str | None) -> list[dict]:
     """The entries of ``pairs.json`` selected by ``--pairs`` (names) and ``--sample`` (a seeded draw,
     in list order), each with its pair name."""
     entries = json.loads((folder / "pairs.json").read_text())
@@ -87,7 +86,7 @@ def gross(row: dict) -> bool:
     return row.get("rotation_error_deg", np.nan) > GROSS_DEG or row.get("translation_error_m", np.nan) > GROSS_M
 
 
-def summarise(rows: List[dict]) -> Dict:
+def summarise(rows: list[dict]) -> dict:
     """Per (method, list) and (method, list, scene): RR, published correct / wrong / gross, times."""
     groups = defaultdict(list)
     for r in rows:
@@ -113,7 +112,7 @@ def _cell(value) -> str:
     return "–" if value is None else str(value)
 
 
-def markdown(summary: Dict, rows: List[dict], methods: List[str], title: str) -> str:
+def markdown(summary: dict, rows: list[dict], methods: list[str], title: str) -> str:
     lines = [title, "", "| list | method | RR | correct / pairs | published correct (of correct) | "
              "published WRONG (gross) | median s |", "|" + "---|" * 7]
     for bench in LISTS:
@@ -153,7 +152,7 @@ def markdown(summary: Dict, rows: List[dict], methods: List[str], title: str) ->
     return "\n".join(lines) + "\n"
 
 
-def run_threedmatch(args, argv, methods: List[str], parser) -> int:
+def run_threedmatch(args, argv, methods: list[str], parser) -> int:
     """regor-bench --threedmatch: every selected pair by every method; prints and writes the report."""
     folder = args.threedmatch
     if not (folder / "pairs.json").is_file():
@@ -164,7 +163,7 @@ def run_threedmatch(args, argv, methods: List[str], parser) -> int:
     except (ValueError, ConfigError) as exc:
         parser.error(str(exc))
     fragments = Fragments(folder)
-    rows: List[dict] = []
+    rows: list[dict] = []
     start = time.perf_counter()
     for done, entry in enumerate(entries, start=1):
         try:
