@@ -52,10 +52,8 @@ def test_the_plausible_candidate_with_the_most_inliers_is_taken(plausible_shifts
     candidates = [(shifted(x), 10) for x in (0.01, 1.0, 2.0, 3.0, 4.0)]   # the first is the winner's place
     inliers = {1.0: 900, 2.0: 50, 3.0: 80, 4.0: 999}
 
-    def distinct(A, B):
-        return abs(A[0, 3] - B[0, 3]) > 0.5
-
+    # with tau = 0.1 m, poses within 0.5 m are one place (initial.same_place)
     picked = visible_candidate(shifted(0.0), candidates, 3, lambda T: Refined(T, inliers[T[0, 3]]),
-                               lambda T: T[0, 3] in plausible_shifts, distinct)
+                               lambda T: T[0, 3] in plausible_shifts, 0.1)
     # only the first three distinct places are refined: 4.0, the most supported, is past the count
     assert (picked is None) if expected is None else picked.transform[0, 3] == expected

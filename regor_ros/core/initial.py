@@ -230,14 +230,19 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
                          distinct_candidates(kept, fitnesses, cfg.inlier_threshold))
 
 
+def same_place(A: np.ndarray, B: np.ndarray, inlier_threshold: float) -> bool:
+    """Whether two poses are one place of the search: within DISTINCT_ANGLE_DEG and
+    DISTINCT_TRANSLATION_FRACTION x tau of each other."""
+    return poses_close(A, B, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+
+
 def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:
     """[(pose, support)] best first, each farther than DISTINCT_ANGLE_DEG or
     DISTINCT_TRANSLATION_FRACTION x tau from every better-supported one: the places the search
     found, so a user sees how far ahead the winner is (a road or a row of trees offers several)."""
     out: list = []
     for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):
-        if not any(poses_close(poses[i], kept, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
-                   for kept, _ in out):
+        if not any(same_place(poses[i], kept, inlier_threshold) for kept, _ in out):
             out.append((poses[i], int(supports[i])))
     return out
 
@@ -245,7 +250,5 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
 def led_by(T: np.ndarray, candidates: list, inlier_threshold: float) -> list:
     """The candidates with the final pose ``T`` first, carrying the best support of the ones at
     its place, then the others (best supported first): the published pose and its rivals."""
-    def same_place(pose):
-        return poses_close(pose, T, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
-    support = max((s for pose, s in candidates if same_place(pose)), default=0)
-    return [(T, support)] + [(pose, s) for pose, s in candidates if not same_place(pose)]
+    support = max((s for pose, s in candidates if same_place(pose, T, inlier_threshold)), default=0)
+    return [(T, support)] + [(pose, s) for pose, s in candidates if not same_place(pose, T, inlier_threshold)]

@@ -22,7 +22,7 @@ from .estimate import (
 from .evidence import Evidence, evidence
 from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
 from .gravity import GravityPrior
-from .initial import DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION, initial_stage, led_by
+from .initial import initial_stage, led_by
 from .kernels import blas_on_one_thread
 from .matching import match_features
 from .metrics import random_rigid_motion
@@ -418,12 +418,8 @@ def _visible_instead(refined, selected: str, candidates: list, source: PreparedC
         return (_plane_refine(point_level, source, target, config, prior) if config.estimation.plane_refinement
                 else point_level)
 
-    def distinct(A: np.ndarray, B: np.ndarray) -> bool:
-        return not poses_close(A, B, DISTINCT_ANGLE_DEG,
-                               DISTINCT_TRANSLATION_FRACTION * config.initial.inlier_threshold)
-
     picked = visible_candidate(refined.transform, candidates, config.estimation.visible_candidates, refine,
-                               plausible, distinct)
+                               plausible, config.initial.inlier_threshold)
     return (refined, selected) if picked is None else (picked, "candidate")
 
 

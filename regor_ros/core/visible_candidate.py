@@ -16,17 +16,19 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .initial import same_place
+
 
 def visible_candidate(T: np.ndarray, candidates: list, count: int, refine: Callable,
-                      plausible: Callable[[np.ndarray], bool], distinct: Callable[[np.ndarray, np.ndarray], bool]):
-    """Of the first ``count`` ``candidates`` ([(pose, support)], best first) distinct from ``T``,
-    each refined (``refine``: pose -> refinement with ``transform`` and ``source_index``), the one
-    that is ``plausible`` with the most inliers; None when none is."""
+                      plausible: Callable[[np.ndarray], bool], inlier_threshold: float):
+    """Of the first ``count`` ``candidates`` ([(pose, support)], best first) at another place than
+    ``T`` (initial.same_place), each refined (``refine``: pose -> refinement with ``transform`` and
+    ``source_index``), the one that is ``plausible`` with the most inliers; None when none is."""
     best = None
-    others = [pose for pose, _ in candidates if distinct(pose, T)][:count]
+    others = [pose for pose, _ in candidates if not same_place(pose, T, inlier_threshold)][:count]
     for pose in others:
         refined = refine(pose)
-        if not distinct(refined.transform, T) or not plausible(refined.transform):
+        if same_place(refined.transform, T, inlier_threshold) or not plausible(refined.transform):
             continue
         if best is None or len(refined.source_index) > len(best.source_index):
             best = refined

@@ -32,7 +32,7 @@ SHORT_NAMES = {  # scene folder -> the place name the other indoor sets use (ben
     "7-scenes-redkitchen": "redkitchen", "sun3d-home_at-home_at_scan1_2013_jan_1": "home_at",
     "sun3d-hotel_uc-scan3": "hotel_uc", "sun3d-hotel_umd-maryland_hotel3": "hotel_umd3",
     "sun3d-mit_76_studyroom-76-1studyroom2": "studyroom", "sun3d-home_md-home_md_scan9_2012_sep_30": "home_md",
-    "sun3d-mit_lab_hj-lab_hj_tea_nov_2_2012_scan1_erika": "lab_hj", "7-scenes-redkitchen-evaluation": "redkitchen",
+    "sun3d-mit_lab_hj-lab_hj_tea_nov_2_2012_scan1_erika": "lab_hj",
 }
 THREEDMATCH_FIELDS = ["bench", *CSV_FIELDS]
 
