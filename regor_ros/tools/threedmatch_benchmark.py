@@ -98,11 +98,12 @@ def summarise(rows: list[dict]) -> dict:
         published = [r for r in rs if r["accepted"] is True]
         wrong = [r for r in published if not r["success"]]
         correct = sum(r["success"] for r in rs)
+        verdicts = rs[0]["accepted"] != ""  # the method has a verdict of its own
         summary[key] = {
             "pairs": len(rs), "correct": correct, "recall": correct / len(rs),
-            "published_correct": len(published) - len(wrong) if rs[0]["accepted"] != "" else None,
-            "published_wrong": len(wrong) if rs[0]["accepted"] != "" else None,
-            "gross_wrong": sum(gross(r) for r in wrong) if rs[0]["accepted"] != "" else None,
+            "published_correct": len(published) - len(wrong) if verdicts else None,
+            "published_wrong": len(wrong) if verdicts else None,
+            "gross_wrong": sum(gross(r) for r in wrong) if verdicts else None,
             "median_s": float(np.median(timed)) if timed else float("nan"),
         }
     return summary
