@@ -1,8 +1,26 @@
+import os
+import subprocess
+import sys
 from glob import glob
 
 from setuptools import find_packages, setup
+from setuptools.command.install import install
 
 PACKAGE = "regor_ros"
+
+
+class InstallAndCompileKernels(install):
+    """colcon build and pip install: compile the numba kernels into the installed package's cache,
+    so that a user's first start only loads them. A build machine without numba still installs."""
+
+    def run(self):
+        super().run()
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [self.install_lib,
+                                                                      os.environ.get("PYTHONPATH")]))}
+        done = subprocess.run([sys.executable, "-c", "from regor_ros.core import warm_up; warm_up()"],
+                              cwd="/", env=env, capture_output=True, text=True)
+        if done.returncode != 0:
+            print(f"regor_ros: kernels not compiled at install (the first start will): {done.stderr[-300:]}")
 
 setup(
     name=PACKAGE,
@@ -23,6 +41,7 @@ setup(
     description="Global point cloud registration (Regor, CVPR 2025) as a ROS 2 node",
     license="MIT",
     tests_require=["pytest"],
+    cmdclass={"install": InstallAndCompileKernels},
     entry_points={
         "console_scripts": [
             "register_node = regor_ros.ros.node:main",

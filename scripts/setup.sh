@@ -42,8 +42,8 @@ ls -d "$PWD/$INSTALL"/regor_ros/lib/python3*/site-packages > "$site/regor_ros_in
 for tool in regor-register regor-batch regor-bench regor-calibrate-gate regor-pair-client regor-relocalize; do
   ln -sf "$PWD/$INSTALL/regor_ros/lib/regor_ros/$tool" "$VENV/bin/$tool"
 done
-echo "== compiling the registration kernels (numba's disk cache: the node's first start only loads them)"
-python_bin="$PWD/$VENV/bin/python"
-"$python_bin" -c "from regor_ros.core import warm_up; warm_up()"             # the source tree (tests)
-(cd / && "$python_bin" -c "from regor_ros.core import warm_up; warm_up()")   # the installed package
+# the build compiled the installed package's kernels (setup.py's install step); the source tree's
+# are compiled here, for the tests that import it
+echo "== compiling the registration kernels of the source tree (numba's disk cache)"
+"$PWD/$VENV/bin/python" -c "from regor_ros.core import warm_up; warm_up()"
 echo "== ready: source $VENV/bin/activate && source $INSTALL/setup.bash"

@@ -1,7 +1,9 @@
 """The /diagnostics status for each state of the node (levels and messages a monitor shows)."""
+import time
+
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from regor_ros.ros.diagnostics import Health, diagnostic_status
+from regor_ros.ros.diagnostics import Health, diagnostic_status, seconds_since_process_start
 
 SUMMARY = {"accepted": False, "reason": "only 12 feature matches agree with the pose", "num_inliers": 300,
            "fitness": 0.2, "feature_inliers": 12, "ambiguity": None, "timings": {"total": 1.5},
@@ -36,6 +38,18 @@ def test_map_mode_reports_the_prepared_map():
                       map_info={"map_points": 207000, "map_keypoints": 42687, "map_preparation_seconds": 1.6})
     values = {kv.key: kv.value for kv in prepared.values}
     assert values["map_keypoints"] == "42687" and values["map_preparation_seconds"] == "1.6"
+
+
+def test_time_to_ready_counts_from_the_process_start():
+    """This test process imported pytest, numpy and rclpy before it got here: its age is more than
+    the time since this test began, and it grows."""
+    began = time.monotonic()
+    age = seconds_since_process_start()
+    assert age is not None and age > time.monotonic() - began
+    time.sleep(0.05)
+    assert seconds_since_process_start() > age
+    ready = status(ready_after_s=3.25)
+    assert {kv.key: kv.value for kv in ready.values}["ready after seconds"] == "3.25"
 
 
 def test_lifecycle_states_and_a_map_file_say_what_the_node_is_doing():

@@ -1,6 +1,8 @@
 """The installed node as Nav2's lifecycle manager drives it, over DDS: configure loads the map or
 fails with the reason, activate registers, load_map swaps maps, and the node never takes its own
 pose as a hint."""
+import re
+
 import numpy as np
 import pytest
 from conftest import DATA, load_map_query
@@ -96,6 +98,9 @@ def test_configure_activate_relocalize_then_load_map_swaps_the_map(install, ros,
         assert "registration kernels ready" not in node.output()  # compiled or loaded in configure,
         assert _transition(ros, Transition.TRANSITION_CONFIGURE), node.output()  # not on a relocalization
         assert "registration kernels ready" in node.output()
+        # the time to ready counts from the process's start, imports included, the map's part named
+        assert re.search(r"ready to register [\d.]+ s after the process started \(kernels [\d.]+ s, map [\d.]+ s\)",
+                         node.output()), node.output()
         assert _state(ros) == State.PRIMARY_STATE_INACTIVE
         inactive = call(ros, Trigger, "relocalize", Trigger.Request())
         assert not inactive.success and "inactive" in inactive.message

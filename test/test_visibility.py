@@ -8,8 +8,9 @@ from regor_ros.core.config import ConfigError
 from regor_ros.core.evidence import Evidence
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
+from regor_ros.core.range_image import RangeImage
 from regor_ros.core.verification import assess, visibility_figures
-from regor_ros.core.visibility import RangeImage, parse_viewpoint
+from regor_ros.core.viewpoint import parse_viewpoint
 
 SCENES = DATA / "pairs_scenes"
 

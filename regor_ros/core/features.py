@@ -16,7 +16,7 @@ from .errors import RegistrationError
 from .feature_index import FeatureIndex
 from .geometry import transform_points
 from .map_view import MapView, trajectory_positions
-from .visibility import RangeImage
+from .range_image import RangeImage
 
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
 MAX_ABS_COORDINATE = 1e6

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import kernels
-from .visibility import RangeImage
+from .range_image import RangeImage
 
 TRAJECTORY_VIEWS = 3      # nearest map sensor poses whose views are used for one candidate
 VIEW_SPACING = 5.0        # in voxels: sensor positions closer than this to a kept one see about the same

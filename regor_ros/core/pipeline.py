@@ -30,7 +30,8 @@ from .regenerate import regenerate
 from .search_region import SearchRegion, restrict
 from .sequence import ScanSequence
 from .verification import Rival, assess, free_space_plausible, reverse_failure, search_region_failure
-from .visibility import ORIGIN, VisibilityFigures
+from .viewpoint import ORIGIN
+from .visibility import VisibilityFigures
 from .visible_candidate import visible_candidate
 
 CloudInput = np.ndarray | PreparedCloud

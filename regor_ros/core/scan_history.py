@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from .sequence import ScanSequence
-from .visibility import ORIGIN
+from .viewpoint import ORIGIN
 
 ODOMETRY_SECONDS = 60.0  # odometry kept: more than any accumulation window
 

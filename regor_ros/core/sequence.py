@@ -15,7 +15,7 @@ import numpy as np
 
 from .features import RegistrationError, SeenCloud, check_viewpoint, clean_points
 from .geometry import transform_points
-from .visibility import ORIGIN
+from .viewpoint import ORIGIN
 
 ROTATION_TOLERANCE = 1e-3  # |R^T R - I| beyond this is not a rotation (odometry quaternions are unit)
 

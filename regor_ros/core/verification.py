@@ -33,8 +33,9 @@ from .features import PreparedCloud
 from .geometry import to_matrix, transform_points
 from .gravity import GravityPrior
 from .metrics import rotation_error_deg, translation_error
+from .range_image import seen_and_inside
 from .search_region import SearchRegion
-from .visibility import VisibilityFigures, opposite_sides, seen_and_inside
+from .visibility import VisibilityFigures, opposite_sides
 
 RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared

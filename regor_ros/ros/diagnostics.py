@@ -8,7 +8,10 @@ gate's reason) or a malformed cloud arrived, ERROR when the last input could not
 """
 from __future__ import annotations
 
+import os
+import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
@@ -28,6 +31,17 @@ class Health:
     inputs: dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
     lifecycle: str = "unconfigured"        # the node's lifecycle state, or why configure failed
     map_from_file: bool = False            # the target is a map file, not target_cloud
+    ready_after_s: float | None = None     # from the process's start to ready to register (imports included)
+
+
+def seconds_since_process_start() -> float | None:
+    """How long this process has run, its imports included (Linux's /proc; None elsewhere)."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")   # field 22, starttime: ticks since boot
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - started
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def _value(v) -> str:
@@ -57,6 +71,8 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
     values = {"lifecycle": health.lifecycle, **health.counters, **health.inputs, **health.map_info}
+    if health.ready_after_s is not None:
+        values["ready after seconds"] = health.ready_after_s
     if summary is not None:
         visibility = summary["visibility"]
         values.update({

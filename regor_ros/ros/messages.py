@@ -2,20 +2,24 @@
 from __future__ import annotations
 
 import json
+from typing import TYPE_CHECKING
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, PoseWithCovarianceStamped
-from scipy.spatial.transform import Rotation
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core import RegistrationResult, to_matrix, transform_points
+from ..core import to_matrix, transform_points
+
+if TYPE_CHECKING:   # the pipeline's load is not needed to build messages from its results
+    from ..core import RegistrationResult
 
 INLIER_COLOUR = ColorRGBA(r=0.1, g=0.9, b=0.2, a=1.0)
 OUTLIER_COLOUR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.6)
 
 
 def pose_from_matrix(T: np.ndarray) -> Pose:
+    from scipy.spatial.transform import Rotation  # scipy.spatial's load (0.5 s): not for a client's --help
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
@@ -26,6 +30,7 @@ def pose_from_matrix(T: np.ndarray) -> Pose:
 
 def matrix_from_pose(pose: Pose) -> np.ndarray:
     """The 4x4 transform of a geometry_msgs/Pose (the inverse of pose_from_matrix)."""
+    from scipy.spatial.transform import Rotation
     p, q = pose.position, pose.orientation
     return to_matrix(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z]))
 

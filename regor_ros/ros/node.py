@@ -48,7 +48,7 @@ from ..core import (
     warm_up,
 )
 from ..io.map_file import load_map_file
-from .diagnostics import Health, diagnostic_array
+from .diagnostics import Health, diagnostic_array, seconds_since_process_start
 from .imu_up import ImuUp
 from .initial_guess import region_of_guess
 from .input_qos import InputSubscription, fixed_profile
@@ -122,7 +122,8 @@ class RegisterNode(LifecycleNode):
         the inputs, outputs and the worker."""
         start = time.perf_counter()
         warm_up()
-        self.get_logger().info(f"registration kernels ready in {time.perf_counter() - start:.2f} s")
+        kernels_s = time.perf_counter() - start
+        self.get_logger().info(f"registration kernels ready in {kernels_s:.2f} s")
         with self._lock:
             config, settings = self.config, self.settings
             self._reset()
@@ -138,10 +139,16 @@ class RegisterNode(LifecycleNode):
         self._worker = threading.Thread(target=self._work, name="regor_worker", daemon=True)
         self._worker.start()
         self.health.lifecycle = "inactive"
+        self.health.ready_after_s = seconds_since_process_start()
+        map_s = self.health.map_info.get("map_preparation_seconds")
         self.get_logger().info(
             f"configured: mode={settings.mode}, voxel={config.features.voxel_size} m; "
             f"listening on {self.resolve_topic_name('source_cloud')}; the target from "
             f"{settings.map_file or self.resolve_topic_name('target_cloud')}")
+        self.get_logger().info(
+            "ready to register" + (f" {self.health.ready_after_s:.1f} s after the process started" if
+                                   self.health.ready_after_s is not None else "")
+            + f" (kernels {kernels_s:.2f} s" + (f", map {map_s:.1f} s)" if map_s is not None else ")"))
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -22,7 +22,6 @@ from typing import TextIO
 
 from ..core import PRESETS, ConfigError, RegorConfig
 from .batch_list import ListError, PairRow, read_pairs
-from .batch_worker import register_row, row_identity
 from .register_cli import parse_overrides
 
 IN_FLIGHT_PER_THREAD = 2  # one running, one queued: a worker never waits for the next pair
@@ -135,6 +134,8 @@ def _failed_row(row: PairRow, exc: BaseException) -> dict:
     """The row of a pair whose task itself failed: it killed every worker that ran it (out of
     memory, a crash in a native library) or raised what register_row does not expect."""
     from distributed import KilledWorker
+
+    from .batch_worker import row_identity
     if isinstance(exc, KilledWorker):
         error = "the pair stopped every worker that ran it (out of memory, or a crash in a native library)"
     else:
@@ -147,6 +148,8 @@ def run_batch(rows: list[PairRow], results: ResultFile, overrides: dict[str, obj
     """Register the rows not yet in ``results`` on the client's workers, each task with
     ``threads`` compiled-kernel threads (None: the worker's own); returns counts."""
     from distributed import as_completed
+
+    from .batch_worker import register_row  # the core and its kernels: loaded once there is a batch to run
     counts = dict.fromkeys(COUNTED, 0)
     finished = as_completed()
     running: dict[object, tuple] = {}  # future -> (row, the worker it was sent to)

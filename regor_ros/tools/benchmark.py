@@ -11,21 +11,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..core import ConfigError, RegorConfig, warm_up
-from .batch_benchmark import run_batch_scaling
-from .bench_results import LEVEL_NOTE, header
-from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, TILE_SPACING, run_maps, run_scaling
-from .pairs_benchmark import run_pairs
-from .peers import METHODS
-from .profile_benchmark import run_profile
-from .register_cli import parse_overrides
-from .threedmatch_benchmark import run_threedmatch
-
-STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
-               f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
-               "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
-
-
 EPILOG = """examples:
   regor-bench ../shared/data/pairs --methods regor,kiss-matcher --rotate 1 2 3
   regor-bench --threedmatch ../shared/data/threedmatch --sample 200
@@ -41,12 +26,38 @@ data formats:
 
 
 def main(argv=None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
+    # known, so that --help and a mistyped option answer at once
+    from ..core import warm_up
+    from .pairs_benchmark import run_pairs
+    from .peers import METHODS
+    from .profile_benchmark import run_profile
+    from .threedmatch_benchmark import run_threedmatch
+
+    warm_up()  # numba's compile or cache load, before any clock starts (as the node does at configure)
+    if args.profile:
+        print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
+        return 0
+    if args.threedmatch:
+        return run_threedmatch(args, argv, _methods(args.methods or "regor,kiss-matcher", METHODS, parser), parser)
+    if args.maps or args.map_scaling or args.batch:
+        return _map_main(args, argv, parser)
+    if not args.data:
+        parser.error("give one or more folders of pairs, or --maps / --map-scaling")
+
+    return run_pairs(args, argv, _methods(args.methods, METHODS, parser), parser)
+
+
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="regor-bench", description=__doc__.split("\n\n")[0], epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("data", type=Path, nargs="*",
                         help="folders with pairs.json and one folder per pair")
-    parser.add_argument("--methods", help=f"comma-separated subset of: {', '.join(METHODS)} (default: "
-                                          "all; with --maps or --map-scaling: regor, kiss-matcher)")
+    parser.add_argument("--methods", help="comma-separated subset of regor (and its variants), o3d-ransac, "
+                                          "o3d-fgr, kiss-matcher (default: all; with --threedmatch, --maps "
+                                          "or --map-scaling: regor, kiss-matcher); a wrong name lists them all")
     parser.add_argument("--rotate", type=int, nargs="+", metavar="SEED",
                         help="move each source by a random rigid motion drawn from SEED; several "
                              "seeds give a mean and spread")
@@ -90,19 +101,7 @@ def main(argv=None) -> int:
                         help="with --threedmatch: a fixed seeded sample of N pairs (the same N, the same pairs)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2],
                         help="local worker processes for --batch (default 1 2)")
-    args = parser.parse_args(argv)
-    warm_up()  # numba's compile or cache load, before any clock starts (as the node does at configure)
-    if args.profile:
-        print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
-        return 0
-    if args.threedmatch:
-        return run_threedmatch(args, argv, _methods(args.methods or "regor,kiss-matcher", METHODS, parser), parser)
-    if args.maps or args.map_scaling or args.batch:
-        return _map_main(args, argv, parser)
-    if not args.data:
-        parser.error("give one or more folders of pairs, or --maps / --map-scaling")
-
-    return run_pairs(args, argv, _methods(args.methods, METHODS, parser), parser)
+    return parser
 
 
 def _methods(requested: str | None, available, parser) -> list[str]:
@@ -120,6 +119,12 @@ def _methods(requested: str | None, available, parser) -> list[str]:
 
 def _map_main(args, argv, parser) -> int:
     """--maps, --map-scaling and --batch: the outdoor preset (every map here is LiDAR) with --set overrides."""
+    from ..core import ConfigError, RegorConfig
+    from .batch_benchmark import run_batch_scaling
+    from .bench_results import LEVEL_NOTE, header
+    from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, STRESS_NOTE, TILE_SPACING, run_maps, run_scaling
+    from .register_cli import parse_overrides
+
     try:
         overrides = {**(LEVEL_MOUNTED if args.level else {}), **parse_overrides(args.set)}
         config = RegorConfig.preset("outdoor").replace(overrides)

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import RegorConfig, Rival, ambiguity
+from ..core import RegorConfig
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
@@ -96,6 +96,7 @@ class Sample:
         return replace(self, violations=(None, None), opposite=None, rivals=rivals)
 
     def ambiguity(self, max_violation: float) -> float | None:
+        from ..core import Rival, ambiguity  # the gate's modules (scipy.stats, the kernels): not for --help
         return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
 
 

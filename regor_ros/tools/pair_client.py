@@ -21,7 +21,6 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from ..core import random_rigid_motion, rotation_error_deg, translation_error
 from ..ros.messages import matrix_from_pose
 from ..ros.pointcloud import xyz_to_cloud
 
@@ -122,6 +121,7 @@ def main(argv=None) -> int:
     parser.add_argument("--status", action="store_true",
                         help="print the node's whole status message (JSON: every figure of the verdict)")
     args = parser.parse_args(argv)
+    from ..core import random_rigid_motion, rotation_error_deg, translation_error  # scipy: after parsing
 
     src, tgt = np.load(args.source), np.load(args.target)
     T_gt = np.loadtxt(args.ground_truth) if args.ground_truth else None

@@ -18,9 +18,6 @@ from ..core import (
     RegistrationError,
     RegorConfig,
     parse_viewpoint,
-    register,
-    rotation_error_deg,
-    translation_error,
 )
 from ..io.cloud_io import FORMATS, read_cloud
 
@@ -36,6 +33,7 @@ def parse_overrides(items):
 
 
 def report(result, ground_truth=None) -> dict:
+    from ..core import rotation_error_deg, translation_error  # scipy's load: not for --help
     out = {"transform": result.transform.tolist(), **result.summary()}
     if ground_truth is not None:
         out["rotation_error_deg"] = rotation_error_deg(result.transform, ground_truth)
@@ -80,6 +78,7 @@ def main(argv=None) -> int:
     parser.add_argument("--picture", metavar="OUT.png", help="render the clouds before/after and the correspondences")
     parser.add_argument("--ground-truth", metavar="GT.txt", help="4x4 T_target_source to compare with")
     args = parser.parse_args(argv)
+    from ..core import register  # after parsing: --help and argument errors answer without loading it
 
     try:
         config = RegorConfig.preset(args.preset).replace(parse_overrides(args.set))

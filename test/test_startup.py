@@ -1,0 +1,51 @@
+"""The command-line tools answer --help and argument errors before loading what registering needs
+(open3d, the compiled kernels, scipy's spatial and statistics modules): each is asked in a fresh
+interpreter, which then lists what it had loaded."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+TOOLS = ["register_cli", "relocalize_client", "pair_client", "benchmark", "batch", "calibrate_gate"]
+HEAVY = ["open3d", "numba", "scipy.spatial", "scipy.stats", "regor_ros.core.pipeline", "regor_ros.core.kernels"]
+
+PROBE = """
+import json, sys
+from regor_ros.tools.{tool} import main
+try:
+    main({argv!r})
+except SystemExit as exc:
+    code = exc.code
+print(json.dumps({{"code": code, "loaded": [m for m in {heavy!r} if m in sys.modules]}}))
+"""
+
+
+def probe(tool: str, argv: list[str]) -> dict:
+    run = subprocess.run([sys.executable, "-c", PROBE.format(tool=tool, argv=argv, heavy=HEAVY)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    return json.loads(run.stdout.splitlines()[-1])
+
+
+@pytest.mark.parametrize("tool", TOOLS)
+def test_help_answers_without_the_registration_modules(tool):
+    answer = probe(tool, ["--help"])
+    assert answer == {"code": 0, "loaded": []}
+
+
+@pytest.mark.parametrize("tool", TOOLS)
+def test_an_unknown_option_is_refused_without_the_registration_modules(tool):
+    answer = probe(tool, ["--no-such-option"])
+    assert answer == {"code": 2, "loaded": []}
+
+
+def test_the_core_loads_a_name_when_it_is_asked_for():
+    """The core's public face is lazy: the configuration alone does not load the pipeline, and
+    every public name still resolves."""
+    code = ("import sys, regor_ros.core as core; from regor_ros.core import RegorConfig; "
+            "light = 'regor_ros.core.pipeline' not in sys.modules; "
+            "missing = [n for n in core.__all__ if getattr(core, n, None) is None]; "
+            "print(light, missing, 'regor_ros.core.pipeline' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.stdout.split() == ["True", "[]", "True"], run.stderr
