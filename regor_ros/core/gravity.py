@@ -28,6 +28,7 @@ import numpy as np
 from .config import GravityConfig, parse_up
 from .features import PreparedCloud
 
+EDGE_ROUNDING_DEG = 1e-6  # a rotation clamped onto the tilt cone's edge lands there up to rounding
 
 @dataclass(frozen=True)
 class GravityPrior:
@@ -83,10 +84,16 @@ class GravityPrior:
 
     def allows(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> np.ndarray:
         """(S,) bool: which of the (S, 4, 4) poses stay inside the tilt cone and keep the source's
-        sensor in the height band (when the height is checked)."""
-        inside = self.tilt_deg(transforms[:, :3, :3]) <= self.max_tilt_deg
+        sensor in the height band (when the height is checked): the prior's one predicate, which
+        the search's filter and the gate's reason both ask."""
+        inside = self.tilt_inside(transforms[:, :3, :3])
         band = self.height_band(transforms, source, target)
-        return inside if band is None else inside & (np.abs(band[0]) <= band[1])
+        return inside if band is None else inside & inside_band(band)
+
+    def tilt_inside(self, rotations: np.ndarray) -> np.ndarray:
+        """Whether each (..., 3, 3) rotation's tilt is within max_tilt; a rotation clamped onto
+        the cone's edge is inside, up to rounding."""
+        return self.tilt_deg(rotations) <= self.max_tilt_deg + EDGE_ROUNDING_DEG
 
     def height_band(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud):
         """For (S, 4, 4) poses: the height of the source's sensor above the target viewpoint
@@ -110,6 +117,12 @@ class GravityPrior:
         distance = np.take_along_axis(horizontal, nearest, axis=1)[:, 0]
         allowed = self.height_tolerance + distance * np.tan(np.radians(self.max_slope_deg))
         return height, allowed, distance
+
+
+def inside_band(band) -> np.ndarray:
+    """Whether each pose of a height_band keeps the source's sensor within the height allowed."""
+    height, allowed, _ = band
+    return np.abs(height) <= allowed
 
 
 def _any_perpendicular(v: np.ndarray) -> np.ndarray:

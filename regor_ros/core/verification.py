@@ -31,7 +31,7 @@ from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, poses_clos
 from .evidence import Evidence
 from .features import PreparedCloud
 from .geometry import to_matrix, transform_points
-from .gravity import GravityPrior
+from .gravity import GravityPrior, inside_band
 from .metrics import rotation_error_deg, translation_error
 from .range_image import seen_and_inside
 from .search_region import SearchRegion
@@ -165,12 +165,12 @@ def assess(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, num_inli
 
 def gravity_failure(prior: GravityPrior, T: np.ndarray, source: PreparedCloud, target: PreparedCloud) -> str:
     """Why the pose breaks the gravity prior (empty when it does not): tilt, then sensor height."""
-    tilt = float(prior.tilt_deg(T[:3, :3]))
-    if tilt > prior.max_tilt_deg + 1e-6:
+    if not prior.tilt_inside(T[:3, :3]):
+        tilt = float(prior.tilt_deg(T[:3, :3]))
         return (f"the pose tilts the source's up by {tilt:.1f} deg from the target's "
                 f"(gravity.max_tilt={prior.max_tilt_deg:g}): tipped over")
     band = prior.height_band(T[None], source, target)
-    if band is not None and abs(band[0][0]) > band[1][0]:
+    if band is not None and not inside_band(band)[0]:
         height, allowed, distance = (float(v[0]) for v in band)
         return (f"the pose puts the source's sensor {height:+.2f} m from the height the target "
                 f"was seen from, {distance:.1f} m away (allowed {allowed:.2f} m: "
