@@ -47,4 +47,4 @@ def test_map_mode_prepares_the_map_first_and_on_demand_waits_for_a_call():
     assert isinstance(inputs.next_job(settings(mode="map", registration="on_demand"), "features", key, True),
                       Register)
     from_file = inputs.next_job(settings(mode="map", map_file="/maps/a.pcd"), "features", key, True)
-    assert isinstance(from_file, PrepareMap) and from_file.target is None and from_file.key[1] == "/maps/a.pcd"
+    assert isinstance(from_file, PrepareMap) and from_file.target is None and from_file.key.file == "/maps/a.pcd"

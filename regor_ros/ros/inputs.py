@@ -23,8 +23,28 @@ class Cloud:
 
 
 @dataclass(frozen=True)
+class MapKey:
+    """What a prepared map was made from: a file (and its trajectory) or a target message (its
+    serial and viewpoint), and the feature settings; a map is prepared again when this changes."""
+
+    features: Any
+    file: str = ""                 # the map file, or '' for a target message
+    trajectory: str = ""           # the file's trajectory, '' for none
+    serial: int = 0                # the target message's serial
+    viewpoint: Any = None          # the target message's viewpoint
+
+    @classmethod
+    def of_file(cls, path: str, trajectory: str, features) -> MapKey:
+        return cls(features, file=path, trajectory=trajectory or "")
+
+    @classmethod
+    def of_message(cls, serial: int, viewpoint, features) -> MapKey:
+        return cls(features, serial=serial, viewpoint=viewpoint)
+
+
+@dataclass(frozen=True)
 class PrepareMap:
-    key: tuple                 # what the map is made from (InputBuffer.map_key)
+    key: MapKey                # what the map is made from (InputBuffer.map_key)
     target: Cloud | None    # the target message, or None for a map file
 
 
@@ -61,16 +81,16 @@ class InputBuffer:
             self.target = cloud
         return stale
 
-    def map_key(self, settings, features) -> tuple | None:
+    def map_key(self, settings, features) -> MapKey | None:
         """What the map must be prepared from now: the file, or the newest target message (with
         the target viewpoint), and the feature settings; None while there is no map."""
         if settings.map_file:
-            return "file", settings.map_file, settings.map_trajectory_file, features
+            return MapKey.of_file(settings.map_file, settings.map_trajectory_file, features)
         if self.target is None:
             return None
-        return "topic", self.target.serial, settings.viewpoints()[1], features
+        return MapKey.of_message(self.target.serial, settings.viewpoints()[1], features)
 
-    def next_job(self, settings, features, prepared_key, map_ready: bool) -> Job | None:
+    def next_job(self, settings, features, prepared_key: MapKey | None, map_ready: bool) -> Job | None:
         """The worker's next job, or None. ``prepared_key`` is what the map in use was made from
         and ``map_ready`` whether there is one."""
         if settings.mode == "map":
