@@ -33,6 +33,13 @@ class Health:
     map_from_file: bool = False            # the target is a map file, not target_cloud
     ready_after_s: float | None = None     # from the process's start to ready to register (imports included)
 
+    def ready_line(self, kernels_s: float) -> str:
+        """The log line of a node ready to register: how long after its start, and the parts."""
+        after = "" if self.ready_after_s is None else f" {self.ready_after_s:.1f} s after the process started"
+        map_s = self.map_info.get("map_preparation_seconds")
+        return f"ready to register{after} (kernels {kernels_s:.2f} s" + (
+            f", map {map_s:.1f} s)" if map_s is not None else ")")
+
 
 def seconds_since_process_start() -> float | None:
     """How long this process has run, its imports included (Linux's /proc; None elsewhere)."""

@@ -29,6 +29,12 @@ def fixed_profile(kind: str) -> QoSProfile:
                       reliability=ReliabilityPolicy.RELIABLE, durability=durability)
 
 
+def stream_profile(depth: int) -> QoSProfile:
+    """A high-rate stream's (odometry, IMU): best effort, which accepts reliable and best-effort
+    publishers alike, with a queue deep enough for a burst between executor turns."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
 def offered_profile(publisher_profiles) -> QoSProfile | None:
     """The profile that matches every one of the publishers' and gets the most from them; None
     when there is no publisher."""

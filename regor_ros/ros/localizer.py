@@ -15,11 +15,22 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 
-from ..core import PreparedCloud, RegistrationError, ScanHistory, SearchRegion, prepare_cloud, register
+from ..core import (
+    PreparedCloud,
+    RegistrationError,
+    ScanHistory,
+    SearchRegion,
+    attached_pose,
+    prepare_cloud,
+    register,
+    warm_up,
+)
 from ..io.map_file import load_map_file
 from .diagnostics import Health
 from .imu_up import ImuUp
@@ -47,7 +58,8 @@ class Outcome:
     result: RegistrationResult
     target_frame: str
     status: dict       # the status message's fields beside the result's own
-    publish: bool      # the pose goes out: accepted, or publish_rejected
+    pose: tuple | None  # (T, covariance) published: the sensor's, or its base's; None when withheld
+    sensor_to_base: np.ndarray | None  # T_base_sensor inverted, with a base_frame (the candidates')
     answer: str        # what happened, in a line (a relocalize call's reply)
 
 
@@ -82,25 +94,41 @@ class Localizer:
 
     # --- lifecycle ---
 
-    def configure(self, config, settings) -> None:
-        """Take the settings and load the map file (RegistrationError with the reason when it
-        cannot be used)."""
+    def configure(self) -> float:
+        """Compile the registration kernels (or load them from numba's disk cache), so that the
+        first relocalization does not pay it, and load the map file (RegistrationError with the
+        reason when it cannot be used); the kernels' seconds."""
+        start = time.perf_counter()
+        warm_up()
+        kernels_s = time.perf_counter() - start
+        self.logger.info(f"registration kernels ready in {kernels_s:.2f} s")
         with self.lock:
-            self.config, self.settings = config, settings
             self.reset()
             self._stopping = False
             self.health.map_info = {}
+            settings = self.settings
         if settings.map_file:
             self.use_map_file(settings.map_file, settings.map_trajectory_file)
+        return kernels_s
 
     def start(self) -> None:
         self._worker = threading.Thread(target=self._work, name="regor_worker", daemon=True)
         self._worker.start()
 
     def set_active(self, active: bool) -> None:
+        """Start or stop taking inputs; activated with a map file, the map goes out (for RViz)."""
         with self.lock:
             self.active = active
             self.lock.notify_all()
+            prepared, frame, from_file = self.map, self.map_frame, bool(self.settings.map_file)
+        if active and from_file and prepared is not None:
+            self._on_map(prepared, frame)
+
+    def release(self) -> None:
+        """Drop the map and the inputs (the node's cleanup)."""
+        with self.lock:
+            self.reset()
+            self.health.map_info = {}
 
     def stop(self, timeout: float) -> None:
         """Stop the worker: wait up to timeout for it to finish (a registration or map preparation
@@ -158,8 +186,12 @@ class Localizer:
 
     # --- requests ---
 
-    def relocalize(self, timeout: float) -> tuple[bool, str]:
-        """(accepted, what happened) of the registration of the next source."""
+    def relocalize(self) -> tuple[bool, str]:
+        """(accepted, what happened) of the registration of the next source, waiting for it up
+        to relocalize_timeout."""
+        timeout = self.settings.relocalize_timeout
+        if not self.active:
+            return False, f"not registering: the node is {self.health.lifecycle} (activate it)"
         with self.lock:
             after = self._inputs.serials["source"]
             self._inputs.relocalize_after = after
@@ -172,6 +204,24 @@ class Localizer:
             return accepted, what
         waiting = "no map yet" if no_map else "no source cloud arrived"
         return False, f"{waiting} within relocalize_timeout={timeout:g} s"
+
+    def change(self, changed) -> None:
+        """Apply ``changed(config, settings) -> (config, settings)`` (a parameter change; it raises
+        ConfigError to refuse); registrations under way keep the settings they started with."""
+        with self.lock:
+            self.config, self.settings = changed(self.config, self.settings)
+
+    def use_map_url(self, map_url: str) -> None:
+        """Load the map a nav_msgs/LoadMap request names: its path or file:// URL, with
+        ``?trajectory=PATH`` for its TUM trajectory. FileNotFoundError (and the map in use stays)
+        when a file is not there, RegistrationError when it is not usable."""
+        url = urlparse(map_url)
+        path = url.path if url.scheme in ("", "file") else ""
+        trajectory = parse_qs(url.query).get("trajectory", [""])[0]
+        missing = [p for p in (path, trajectory) if p and not Path(p).expanduser().is_file()]
+        if not path or missing:
+            raise FileNotFoundError(missing[0] if missing else repr(map_url))
+        self.use_map_file(path, trajectory)
 
     def use_map_file(self, path: str, trajectory: str) -> None:
         """Load (or prepare and cache) a map file and register against it from now on; the map in
@@ -349,6 +399,11 @@ class Localizer:
             self.logger.warning(f"pose rejected: {result.reason} ({figures})")
             answer = (f"pose published although rejected: {result.reason}" if settings.publish_rejected
                       else f"pose withheld: {result.reason}")
-        self._on_outcome(Outcome(src, result, target_frame, status,
-                                 result.accepted or settings.publish_rejected, answer))
+        base = np.linalg.inv(settings.base_extrinsic()) if settings.base_frame else None
+        pose = None
+        if result.accepted or settings.publish_rejected:
+            # the robot's pose, for Nav2: the sensor's composed with its mounting
+            pose = ((result.transform, result.covariance) if base is None
+                    else attached_pose(result.transform, result.covariance, base))
+        self._on_outcome(Outcome(src, result, target_frame, status, pose, base, answer))
         return result.accepted, answer

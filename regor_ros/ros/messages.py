@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, PoseWithCovarianceStamped
+from sensor_msgs.msg import Imu
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -33,6 +34,26 @@ def matrix_from_pose(pose: Pose) -> np.ndarray:
     from scipy.spatial.transform import Rotation
     p, q = pose.position, pose.orientation
     return to_matrix(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z]))
+
+
+def stamp_seconds(header: Header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def imu_reading(msg: Imu) -> tuple:
+    """(stamp, orientation xyzw or None, linear acceleration): REP 145, an
+    orientation_covariance[0] of -1 says no orientation is reported."""
+    q, a = msg.orientation, msg.linear_acceleration
+    orientation = None if msg.orientation_covariance[0] == -1.0 else np.array([q.x, q.y, q.z, q.w])
+    return stamp_seconds(msg.header), orientation, np.array([a.x, a.y, a.z])
+
+
+def pose_key(msg: PoseWithCovarianceStamped) -> tuple:
+    """A pose message's identity (stamp, frame, position), to recognise one of the node's own
+    poses come back as a hint."""
+    p = msg.pose.pose.position
+    return (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id,
+            round(p.x, 6), round(p.y, 6), round(p.z, 6))
 
 
 def pose_stamped(T: np.ndarray, header: Header) -> PoseStamped:

@@ -1,0 +1,121 @@
+"""The node's work without ROS (ros/localizer.py): the worker registers the newest pair and reports
+it, a relocalize call waits for the next source, a map is loaded one way whoever asks and the map
+in use stays when a new one fails, a hint in another frame is dropped. On the bundled real pair."""
+import logging
+import threading
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from conftest import REPO
+
+from regor_ros.core import RegorConfig, SearchRegion, rotation_error_deg, translation_error
+from regor_ros.ros.localizer import Hint, Localizer
+from regor_ros.ros.parameters import make_settings
+
+DEMO = REPO / "demo"
+SOURCE, TARGET = np.load(DEMO / "src.npy"), np.load(DEMO / "tgt.npy")
+TRUTH = np.loadtxt(DEMO / "gt.txt")
+WAIT_S = 300.0   # a registration takes about a second; the bound only stops a hung test
+
+
+class Recorder:
+    """The node's side: what the localizer reports."""
+
+    def __init__(self):
+        self.outcomes, self.maps = [], []
+
+    def wait_for_outcomes(self, count: int):
+        deadline = time.monotonic() + WAIT_S
+        while len(self.outcomes) < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(self.outcomes) >= count, "no registration reported"
+        return self.outcomes[count - 1]
+
+
+def started(**settings):
+    recorder = Recorder()
+    localizer = Localizer(RegorConfig.preset("indoor"), make_settings(settings), logging.getLogger("localizer"),
+                          recorder.outcomes.append, lambda prepared, frame: recorder.maps.append((prepared, frame)))
+    localizer.configure()
+    localizer.start()
+    localizer.set_active(True)
+    return localizer, recorder
+
+
+def header(frame: str):
+    return SimpleNamespace(frame_id=frame)
+
+
+def test_the_worker_registers_the_newest_pair_and_reports_the_pose():
+    localizer, recorder = started()
+    try:
+        localizer.store("target", header("map"), 1.0, TARGET)
+        localizer.store("source", header("camera"), 1.0, SOURCE)
+        outcome = recorder.wait_for_outcomes(1)
+    finally:
+        localizer.stop(5.0)
+    assert outcome.result.accepted and outcome.pose is not None and outcome.target_frame == "map"
+    T, covariance = outcome.pose
+    assert rotation_error_deg(T, TRUTH) < 5 and translation_error(T, TRUTH) < 0.1
+    assert covariance.shape == (6, 6)
+    assert outcome.status["source_frame"] == "camera" and outcome.status["registrations"] == 1
+    assert outcome.answer.startswith("pose published")
+
+
+def test_on_demand_a_relocalize_call_waits_for_the_next_source():
+    localizer, recorder = started(registration="on_demand")
+    try:
+        localizer.store("target", header("map"), 1.0, TARGET)
+        localizer.store("source", header("camera"), 1.0, SOURCE)
+        time.sleep(0.5)
+        assert not recorder.outcomes   # on demand: nothing registered without a call
+        answers = []
+        call = threading.Thread(target=lambda: answers.append(localizer.relocalize()))
+        call.start()
+        time.sleep(0.5)
+        localizer.store("source", header("camera"), 2.0, SOURCE)   # the scan after the call
+        call.join(WAIT_S)
+    finally:
+        localizer.stop(5.0)
+    assert answers and answers[0][0] and answers[0][1].startswith("pose published")
+    assert len(recorder.outcomes) == 1
+
+
+def test_a_hint_in_another_frame_is_dropped_with_a_warning(caplog):
+    localizer, recorder = started()
+    try:
+        localizer.set_hint(Hint("odom", SearchRegion.checked((0.0, 0.0, 0.0), 1.0)))
+        localizer.store("target", header("map"), 1.0, TARGET)
+        localizer.store("source", header("camera"), 1.0, SOURCE)
+        outcome = recorder.wait_for_outcomes(1)
+    finally:
+        localizer.stop(5.0)
+    assert outcome.status["search_region"] is None and localizer.stats["bad_inputs"] == 1
+    assert "initial_guess dropped: it is in 'odom', the target cloud in 'map'" in caplog.text
+
+
+def test_a_map_is_loaded_one_way_and_the_map_in_use_stays_when_a_new_one_fails(tmp_path):
+    localizer, recorder = started(mode="map")
+    try:
+        with pytest.raises(FileNotFoundError):
+            localizer.use_map_url(str(tmp_path / "missing.npy"))
+        assert localizer.map is None
+        map_file = tmp_path / "room.npy"
+        np.save(map_file, TARGET)
+        localizer.use_map_url(f"file://{map_file}")
+        in_use = localizer.map
+        assert in_use is not None and localizer.settings.map_file == str(map_file)
+        assert localizer.health.map_from_file and len(recorder.maps) == 1   # active: the map goes out
+        junk = tmp_path / "junk.npy"
+        junk.write_bytes(np.random.default_rng(0).bytes(4096))
+        with pytest.raises(Exception) as refused:
+            localizer.use_map_url(str(junk))
+        assert not isinstance(refused.value, FileNotFoundError)
+        assert localizer.map is in_use and localizer.settings.map_file == str(map_file)
+        localizer.store("source", header("camera"), 1.0, SOURCE)   # registered against the map file
+        outcome = recorder.wait_for_outcomes(1)
+    finally:
+        localizer.stop(5.0)
+    assert outcome.target_frame == localizer.settings.map_frame and outcome.status["map_keypoints"] == len(in_use)
