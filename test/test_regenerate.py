@@ -2,9 +2,9 @@ import numpy as np
 from conftest import random_motion
 from scipy.spatial import cKDTree
 
+from regor_ros.core.cloud import PreparedCloud
 from regor_ros.core.config import FeatureConfig, RegenerationConfig
 from regor_ros.core.feature_index import FeatureIndex
-from regor_ros.core.features import PreparedCloud
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.regenerate import LocalMatches, global_filter, three_point_filter
 

@@ -10,7 +10,7 @@ from importlib import import_module
 _HOMES = {
     "config": ("CHOICES", "PRESETS", "FeatureConfig", "RegorConfig", "param"),
     "errors": ("ConfigError", "RegistrationError"),
-    "features": ("MAX_ABS_COORDINATE", "PreparedCloud"),
+    "cloud": ("MAX_ABS_COORDINATE", "PreparedCloud"),
     "geometry": ("attached_pose", "parse_numbers", "to_matrix", "transform_points"),
     "kernels": ("warm_up",),
     "matching": ("match_features",),

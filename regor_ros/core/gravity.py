@@ -25,8 +25,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .cloud import PreparedCloud
 from .config import GravityConfig, parse_up
-from .features import PreparedCloud
 
 EDGE_ROUNDING_DEG = 1e-6  # a rotation clamped onto the tilt cone's edge lands there up to rounding
 

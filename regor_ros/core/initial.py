@@ -14,10 +14,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import kernels
+from .cloud import PreparedCloud
 from .config import InitialConfig
 from .consistency import compatibility, leading_eigenvector, second_order_top_k, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
-from .features import PreparedCloud
 from .geometry import transform_points
 from .gravity import GravityPrior
 from .matching import FeatureMatches

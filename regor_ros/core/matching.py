@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
-from .features import PreparedCloud
+from .cloud import PreparedCloud
 
 
 @dataclass

@@ -7,7 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .cloud import PreparedCloud, SeenCloud, check_viewpoint
 from .config import RegorConfig
+from .errors import RegistrationError
 from .estimate import (
     agreeing,
     inliers_at,
@@ -20,7 +22,7 @@ from .estimate import (
     weighted_kabsch,
 )
 from .evidence import Evidence, evidence
-from .features import PreparedCloud, RegistrationError, SeenCloud, check_viewpoint, prepare
+from .features import prepare
 from .gravity import GravityPrior
 from .initial import initial_stage, led_by
 from .kernels import blas_on_one_thread

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
+from .cloud import PreparedCloud
 from .config import RegenerationConfig
 from .consistency import top_second_order
-from .features import PreparedCloud
 from .matching import generalized_mutual_matches
 
 

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .features import PreparedCloud, RegistrationError
+from .cloud import PreparedCloud
+from .errors import RegistrationError
 
 REACH_PERCENTILE = 99
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .features import RegistrationError, SeenCloud, check_viewpoint, clean_points
+from .cloud import SeenCloud, check_viewpoint, clean_points
+from .errors import RegistrationError
 from .geometry import transform_points
 from .viewpoint import ORIGIN
 

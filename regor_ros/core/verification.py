@@ -26,10 +26,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import kernels
+from .cloud import PreparedCloud
 from .config import AcceptanceConfig, RegorConfig
 from .estimate import UNCONSTRAINED_VARIANCE, agreeing, point_refine, poses_close
 from .evidence import Evidence
-from .features import PreparedCloud
 from .geometry import to_matrix, transform_points
 from .gravity import GravityPrior, inside_band
 from .metrics import rotation_error_deg, translation_error

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..core.cloud import PreparedCloud
 from ..core.config import FeatureConfig
 from ..core.feature_index import FeatureIndex
-from ..core.features import PreparedCloud
 from ..core.map_view import MapView
 
 CACHE_VERSION = 3  # raise when the saved arrays or their meaning change (3: normals face the sensors)
