@@ -10,8 +10,9 @@ PACKAGE = "regor_ros"
 
 
 class InstallAndCompileKernels(install):
-    """colcon build and pip install: compile the numba kernels into the installed package's cache,
-    so that a user's first start only loads them. A build machine without numba still installs."""
+    """colcon build (setup.py install): compile the numba kernels into the installed package's
+    cache, so that a user's first start only loads them. A build machine without numba still
+    installs (the first start compiles)."""
 
     def run(self):
         super().run()
