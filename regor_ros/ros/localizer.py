@@ -235,14 +235,14 @@ class Localizer:
                                    settings.map_cache_dir, warn=self.logger.warning)
             return loaded.prepared, loaded.info
 
-        moved = dataclasses.replace(settings, map_file=path, map_trajectory_file=trajectory)
-        prepared = self._use_map(load, key, settings.map_frame, moved)
+        prepared = self._use_map(load, key, settings.map_frame, (path, trajectory))
         if prepared is not None and self.active:  # for RViz: the map as the node uses it
             self._on_map(prepared, settings.map_frame)
 
-    def _use_map(self, prepare, key: MapKey, frame: str, settings=None) -> PreparedCloud | None:
-        """Run ``prepare`` (-> prepared map, info) and make its map the one registered against,
-        with ``settings`` (when given) in the same step; None when the node stopped meanwhile."""
+    def _use_map(self, prepare, key: MapKey, frame: str, file: tuple[str, str] | None = None) -> PreparedCloud | None:
+        """Run ``prepare`` (-> prepared map, info) and make its map the one registered against; a
+        map ``file`` (path, trajectory) becomes the settings' map file in the same step (other
+        settings changed meanwhile are kept). None when the node stopped meanwhile."""
         self.health.preparing_map = True
         start = time.perf_counter()
         try:
@@ -254,9 +254,9 @@ class Localizer:
             if self._stopping:  # the node's publishers are going away
                 return None
             self.map, self._map_key, self.map_frame = prepared, key, frame
-            if settings is not None:
-                self.settings = settings
-                self.health.map_from_file = bool(settings.map_file)
+            if file is not None:
+                self.settings = dataclasses.replace(self.settings, map_file=file[0], map_trajectory_file=file[1])
+                self.health.map_from_file = True
             self.stats["map_preparations"] += 1
             self.health.last_error = ""
             self.health.map_info = {
