@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
-from regor_ros.core.evidence import independent, log10_false_alarms
+from regor_ros.core.evidence import independent, log10_binomial_tail, log10_false_alarms
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
 from regor_ros.core.verification import visibility_figures
@@ -97,6 +97,21 @@ def test_false_alarms_grow_with_the_matches_the_chance_and_the_hypotheses_tried(
     assert log10_false_alarms(8, 200, 1e-2, 1000) > base
     assert log10_false_alarms(8, 200, 1e-3, 10 ** 6) == pytest.approx(base + 3)
     assert log10_false_alarms(1, 200, 1e-2, 1000) > 0   # one agreeing match is what chance gives
+
+
+def test_the_binomial_tail_is_scipy_stats_own_to_the_bit():
+    """The tail is the incomplete beta scipy.stats' binomial survival function evaluates (without
+    importing scipy.stats at start-up), over counts, trial numbers and chances from 1 to 1e-300."""
+    from scipy.stats import binom
+    rng = np.random.default_rng(0)
+    for _ in range(5000):
+        trials = int(rng.integers(1, 200_000))
+        at_least = int(rng.integers(1, trials + 1))
+        p = float(rng.uniform(0, 1)) ** int(rng.integers(1, 12))
+        with np.errstate(divide="ignore"):
+            assert log10_binomial_tail(at_least, trials, p) == binom.logsf(at_least - 1, trials, p) / np.log(10)
+    assert log10_binomial_tail(1, 10, 0.0) == -np.inf and log10_binomial_tail(10, 10, 1.0) == 0.0
+    assert log10_binomial_tail(12, 10, 0.5) == -np.inf   # more than the trials: impossible
 
 
 def test_the_three_matches_a_pose_is_fitted_to_are_no_evidence():

@@ -2,8 +2,8 @@
 
 The names below are the core's public face: the node, the files layer and the tools import from
 here, never from the modules behind it. Each name is loaded when first asked for (PEP 562), so a
-tool that only needs the configuration answers ``--help`` without loading open3d, scipy.stats and
-the compiled kernels.
+tool that only needs the configuration answers ``--help`` without loading open3d, scipy's spatial
+modules and the compiled kernels.
 """
 from importlib import import_module
 

@@ -96,7 +96,7 @@ class Sample:
         return replace(self, violations=(None, None), opposite=None, rivals=rivals)
 
     def ambiguity(self, max_violation: float) -> float | None:
-        from ..core import Rival, ambiguity  # the gate's modules (scipy.stats, the kernels): not for --help
+        from ..core import Rival, ambiguity  # the gate's modules (the kernels): not for --help
         return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
 
 
