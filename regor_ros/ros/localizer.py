@@ -102,10 +102,9 @@ class Localizer:
         warm_up()
         kernels_s = time.perf_counter() - start
         self.logger.info(f"registration kernels ready in {kernels_s:.2f} s")
+        self.release()
         with self.lock:
-            self.reset()
             self._stopping = False
-            self.health.map_info = {}
             settings = self.settings
         if settings.map_file:
             self.use_map_file(settings.map_file, settings.map_trajectory_file)
@@ -125,7 +124,7 @@ class Localizer:
             self._on_map(prepared, frame)
 
     def release(self) -> None:
-        """Drop the map and the inputs (the node's cleanup)."""
+        """Drop the map and the inputs (the node's cleanup, and a fresh start's configure)."""
         with self.lock:
             self.reset()
             self.health.map_info = {}
