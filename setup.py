@@ -23,6 +23,7 @@ class InstallAndCompileKernels(install):
         if done.returncode != 0:
             print(f"regor_ros: kernels not compiled at install (the first start will): {done.stderr[-300:]}")
 
+
 setup(
     name=PACKAGE,
     version="0.1.0",

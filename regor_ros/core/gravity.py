@@ -30,6 +30,7 @@ from .config import GravityConfig, parse_up
 
 EDGE_ROUNDING_DEG = 1e-6  # a rotation clamped onto the tilt cone's edge lands there up to rounding
 
+
 @dataclass(frozen=True)
 class GravityPrior:
     source_up: np.ndarray     # (3,) unit, in the source frame
