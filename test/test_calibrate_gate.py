@@ -1,12 +1,23 @@
 """The gate calibration: thresholds that publish no wrong pose, chosen without the held-out place."""
 import csv
 
+import pytest
+
+from regor_ros.core import Figures, RivalFigures
 from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score, stable_fit
+
+NAN = float("nan")
 
 
 def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
-    """A run checked from both sides (``violation`` on each), or from neither (None)."""
-    return Sample(kind, (place,), correct, True, features, (violation, violation), opposite, rivals)
+    """A run checked from both sides (``violation`` on each), or from neither (None), that passes
+    the checks that are not fitted (apart from ``opposite`` sides)."""
+    side = NAN if violation is None else violation
+    figures = Figures(num_inliers=500, fitness=0.5, surface_agreement=1.0, log10_false_alarms=-10.0,
+                      independent_agreeing=50, feature_inliers=features, free_space_source=side,
+                      free_space_target=side, opposite_sides=NAN if opposite is None else opposite,
+                      rivals=RivalFigures.of(rivals))
+    return Sample(kind, (place,), correct, figures)
 
 
 def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
@@ -35,7 +46,8 @@ def test_a_run_without_a_full_visibility_check_is_judged_by_the_partial_threshol
 
 def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_path, capsys):
     fields = ["method", "kind", "pair", "success", "num_inliers", "fitness", "reason", "feature_inliers",
-              "free_space_source", "free_space_target", "opposite_sides", "rivals", "error"]
+              "free_space_source", "free_space_target", "opposite_sides", "rivals", "surface_agreement",
+              "log10_false_alarms", "independent_agreeing", "constrained", "error"]
     rows = [("3dmatch_kitchen_1_2", "True", 100, "0.01", "0.02", ""),
             ("3dmatch_hotel_3_4", "True", 90, "0.03", "", "0.500:0.600:0.01:None:179.0"),
             ("3dmatch_kitchen_1_2 -> 3dmatch_hotel_3_4", "False", 95, "0.45", "0.1", "")]
@@ -47,7 +59,8 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
             writer.writerow({"method": "regor", "kind": "indoor", "pair": pair, "success": success,
                              "num_inliers": 500, "fitness": 0.5, "reason": "", "feature_inliers": features,
                              "free_space_source": vs, "free_space_target": vt, "opposite_sides": "0.1",
-                             "rivals": rivals, "error": ""})
+                             "rivals": rivals, "surface_agreement": 0.95, "log10_false_alarms": -8.0,
+                             "independent_agreeing": 20, "constrained": "True", "error": ""})
     samples = load_samples([path], "regor")
     assert [s.violation for s in samples] == [0.02, 0.03, 0.45]
     assert samples[1].ambiguity(0.3) == 0.5 and samples[1].ambiguity(0.005) is None
@@ -57,6 +70,25 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
     assert "fitted on all of it" in report and "the preset as shipped" in report
     assert "Wrong poses published with their place held out" in report
     assert "| indoor | min_feature_inliers |" in report   # how far each threshold moves between folds
+    # the gate's figures are read back as recorded: a run whose inliers fixed too few degrees of
+    # freedom, or beyond chance, is judged so by the same judge
+    rows = list(csv.DictReader(open(path)))
+    rows[0]["constrained"], rows[1]["log10_false_alarms"] = "False", "0.5"
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    assert [s.passes_unfitted for s in load_samples([path], "regor")] == [False, False, True]
+
+
+def test_a_csv_without_the_gate_figures_is_refused_in_one_line(tmp_path, capsys):
+    path = tmp_path / "old.csv"
+    path.write_text("method,kind,pair,success,num_inliers,fitness,feature_inliers,error\n"
+                    "regor,indoor,3dmatch_kitchen_1_2,True,500,0.5,90,\n")
+    with pytest.raises(SystemExit) as exit_code:
+        main([str(path)])
+    assert exit_code.value.code == 2
+    assert "no column 'surface_agreement'" in capsys.readouterr().err
 
 
 def test_the_alone_fit_does_not_lean_on_free_space():

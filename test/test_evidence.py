@@ -1,4 +1,4 @@
-"""The gate's evidence scaled to chance (core/evidence.py) and free space judged with the pose's
+"""The gate's evidence scaled to chance (core/gate/evidence.py) and free space judged with the pose's
 own uncertainty, on the real scan-to-map data where fixed thresholds failed."""
 import numpy as np
 import pytest
@@ -7,10 +7,10 @@ from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
-from regor_ros.core.evidence import independent, log10_binomial_tail, log10_false_alarms
+from regor_ros.core.gate.evidence import independent, log10_binomial_tail, log10_false_alarms
+from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
-from regor_ros.core.verification import visibility_figures
 from regor_ros.tools.map_benchmark import load_sequence
 from regor_ros.tools.pairs_benchmark import cross_place_pairs, load_pairs
 

@@ -6,9 +6,11 @@ from conftest import DATA, require_shared_data
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
+from regor_ros.core.gate.figures import Figures
+from regor_ros.core.gate.judge import judge
+from regor_ros.core.gate.measure import gravity_figures
 from regor_ros.core.gravity import GravityPrior
 from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
-from regor_ros.core.verification import gravity_failure
 from regor_ros.tools.pairs_benchmark import UP_Z, Pair
 
 PAIR = "mulran_riv02_048_to_044"  # 12 m apart, 72 % overlap: Regor registers it with or without the prior
@@ -62,11 +64,21 @@ def test_a_level_pose_passes_and_a_tipped_over_one_is_rejected_with_the_reason(g
     source = prepare_cloud(src, config, viewpoint=[0, 0, 0])
     target = prepare_cloud(tgt, config, viewpoint=[0, 0, 0])
     prior = GravityPrior.of(config.gravity)
-    assert gravity_failure(prior, T, source, target) == ""
-    assert "gravity.max_tilt=10" in gravity_failure(prior, tipped(T, 25.0), source, target)
+
+    def verdict(pose):   # every figure but gravity's passes
+        figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
+                          log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=1000,
+                          **gravity_figures(pose, prior, source, target))
+        return judge(figures, config.acceptance)
+
+    assert verdict(T).accepted
+    tipped_over = verdict(tipped(T, 25.0))
+    assert tipped_over.failed == "gravity_tilt" and "gravity.max_tilt=10" in tipped_over.reason
     lifted = T.copy()
     lifted[2, 3] += 4.0  # 12 m away: 0.5 m plus 12 m x tan(10 deg) = 2.6 m allowed
-    assert "gravity.height_tolerance=0.5" in gravity_failure(prior, lifted, source, target)
+    out_of_band = verdict(lifted)
+    assert out_of_band.failed == "gravity_height" and "gravity.height_tolerance" in out_of_band.reason
+    assert "12.1 m away (allowed 2.64 m" in out_of_band.reason
     assert prior.allows(np.stack([T, lifted, tipped(T, 25.0)]), source, target).tolist() == [True, False, False]
 
 

@@ -6,9 +6,9 @@ from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegistrationError, RegorConfig, ScanSequence, prepare_cloud, register
+from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success
-from regor_ros.core.verification import visibility_figures
 from regor_ros.tools.map_benchmark import load_sequence
 
 OUTDOOR = RegorConfig.preset("outdoor")

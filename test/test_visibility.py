@@ -5,21 +5,18 @@ from conftest import DATA, load_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError
-from regor_ros.core.evidence import Evidence
+from regor_ros.core.gate.figures import Figures
+from regor_ros.core.gate.judge import judge
+from regor_ros.core.gate.rivals import symmetric_rivals
+from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.range_image import RangeImage
-from regor_ros.core.verification import assess, visibility_figures
 from regor_ros.core.viewpoint import parse_viewpoint
 
 SCENES = DATA / "pairs_scenes"
 
 INDOOR = RegorConfig.preset("indoor")
-# figures against chance that pass, so a test's verdict rests on visibility alone
-PASSING = Evidence(surface_agreement=1.0, overlap=5000, independent_matches=100, independent_agreeing=100,
-                   chance=1e-3, log10_false_alarms=-50.0)
-
-
 def box_surface(low, high, spacing, rng, faces=("x-", "x+", "y-", "y+", "z-", "z+")):
     """Points on the chosen faces of an axis-aligned box."""
     low, high = np.asarray(low, float), np.asarray(high, float)
@@ -49,6 +46,17 @@ def matched(T, source):
     return source.points, transform_points(T, source.points)
 
 
+def verdict_on_visibility(T, source, target):
+    """The gate's verdict when every figure but free space, sides and the symmetric rivals passes
+    (measured on the pose as given, the rivals refined as the pipeline does)."""
+    visibility = visibility_figures(T, source, target, INDOOR.acceptance, np.arange(len(target)))
+    rivals = symmetric_rivals(T, len(source), matched(T, source), target.points, source, target, INDOOR)
+    figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
+                      log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=len(source),
+                      rivals=rivals, **visibility.as_figures())
+    return judge(figures, INDOOR.acceptance), visibility
+
+
 def turn_about_z(degrees, centre=(0.0, 0.0, 0.0)):
     a = np.radians(degrees)
     T = np.eye(4)
@@ -74,8 +82,7 @@ def test_true_pose_of_a_room_sees_no_surface_in_free_space(rooms):
     source, target, T_true = rooms
     figures = visibility_figures(T_true, source, target, INDOOR.acceptance)
     assert figures.source_violation < 0.02 and figures.target_violation < 0.02
-    verdict = assess(T_true, source, target, 5000, 0.9, matched(T_true, source), len(source), np.eye(6) * 1e-4,
-                     (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
+    verdict, _ = verdict_on_visibility(T_true, source, target)
     assert verdict.accepted, verdict.reason
 
 
@@ -83,11 +90,10 @@ def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
     source, target, T_true = rooms
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
     # every other check is given passing figures: only free space can reject it
-    verdict = assess(wrong, source, target, 5000, 0.9, matched(wrong, source), len(source), np.eye(6) * 1e-4,
-                     (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR)
-    assert not verdict.accepted
+    verdict, visibility = verdict_on_visibility(wrong, source, target)
+    assert not verdict.accepted and verdict.failed == "max_free_space_violation"
     assert "saw through" in verdict.reason and "max_free_space_violation" in verdict.reason
-    assert verdict.visibility.worst > 0.1   # the true pose: under 0.02
+    assert visibility.worst > 0.1   # the true pose: under 0.02
 
 
 def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_check(rooms):
@@ -102,8 +108,7 @@ def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_c
     blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
     unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
     assert unknown.worst is None
-    assert assess(wrong, blind, map_like, 5000, 0.9, matched(wrong, blind), len(blind), np.eye(6) * 1e-4,
-                  (0.01, 0.001), np.arange(len(target)), PASSING, INDOOR).accepted
+    assert verdict_on_visibility(wrong, blind, map_like)[0].accepted
 
 
 def test_empty_bins_are_unknown_not_free():

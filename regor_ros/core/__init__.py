@@ -11,6 +11,8 @@ _HOMES = {
     "config": ("CHOICES", "PRESETS", "FeatureConfig", "RegorConfig", "param"),
     "errors": ("ConfigError", "RegistrationError"),
     "cloud": ("MAX_ABS_COORDINATE", "PreparedCloud"),
+    "gate.figures": ("Figures", "RivalFigures", "stack"),
+    "gate.judge": ("CHECKS", "Verdict", "ambiguity", "judge", "passes"),
     "geometry": ("attached_pose", "parse_numbers", "to_matrix", "transform_points"),
     "kernels": ("warm_up",),
     "matching": ("match_features",),
@@ -21,7 +23,6 @@ _HOMES = {
     "scan_history": ("AccumulationLimits", "ScanHistory"),
     "search_region": ("SearchRegion",),
     "sequence": ("ScanSequence",),
-    "verification": ("Rival", "ambiguity"),
     "viewpoint": ("ORIGIN", "parse_viewpoint"),
 }
 _HOME_OF = {name: module for module, names in _HOMES.items() for name in names}

@@ -9,7 +9,7 @@ impossible and never competes with the right one. Where it pays:
   length threshold plus what the tilt allows over their distance (the search becomes 4-DoF in
   spirit, as Quatro's and hdl_global_localization's are);
 - estimation: every rotation (hypotheses, refinements) is brought inside the tilt cone;
-- the gate (core/verification.py, with the reason): a pose outside the cone, or whose sensor
+- the gate (core/gate/, with the reason): a pose outside the cone, or whose sensor
   height leaves the band, is rejected, and a symmetric rival that turns the scan over is not a
   rival.
 

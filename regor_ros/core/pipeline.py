@@ -21,8 +21,12 @@ from .estimate import (
     resolution_uncertainty,
     weighted_kabsch,
 )
-from .evidence import Evidence, evidence
 from .features import prepare
+from .gate.evidence import Evidence
+from .gate.figures import Figures, RivalFigures
+from .gate.judge import Verdict, judge, passes
+from .gate.measure import measure, region_figures, reverse_figures
+from .gate.visibility import VisibilityFigures, free_space_plausible
 from .gravity import GravityPrior
 from .initial import initial_stage, led_by
 from .kernels import blas_on_one_thread
@@ -31,9 +35,7 @@ from .metrics import random_rigid_motion
 from .regenerate import regenerate
 from .search_region import SearchRegion, restrict
 from .sequence import ScanSequence
-from .verification import Rival, assess, free_space_plausible, reverse_failure, search_region_failure
 from .viewpoint import ORIGIN
-from .visibility import VisibilityFigures
 from .visible_candidate import visible_candidate
 
 CloudInput = np.ndarray | PreparedCloud
@@ -64,8 +66,8 @@ class Candidate:
 @dataclass
 class RegistrationResult:
     transform: np.ndarray          # 4x4 T_target_source: maps source points into the target frame
-    accepted: bool                 # passed the quality gate (acceptance config)
-    reason: str                    # why it was not accepted; empty when accepted
+    verdict: Verdict               # the quality gate's (core/gate/judge.py) on ``figures``
+    figures: Figures               # everything the gate judged the pose on
     num_inliers: int               # source keypoints with a target keypoint within tau_e
     fitness: float                 # num_inliers / source keypoints
     num_feature_inliers: int       # initial feature matches consistent with the pose
@@ -80,10 +82,28 @@ class RegistrationResult:
     timings: dict[str, float] = field(default_factory=dict)    # seconds per stage
     attempts: int = 1  # registrations run: 1 + the acceptance.retries used
     visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
-    rivals: list[Rival] = field(default_factory=list)  # the pose turned about the overlap's symmetry axes
-    ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
-    evidence: Evidence | None = None  # the pose's support against chance (core/evidence.py)
+    evidence: Evidence | None = None  # the pose's support against chance (core/gate/evidence.py)
     candidates: list[Candidate] = field(default_factory=list)  # this pose, then the other places found
+
+    @property
+    def accepted(self) -> bool:
+        """Passed the quality gate (acceptance config)."""
+        return self.verdict.accepted
+
+    @property
+    def reason(self) -> str:
+        """Why it was not accepted; empty when accepted."""
+        return self.verdict.reason
+
+    @property
+    def ambiguity(self) -> float | None:
+        """Support ratio of the best symmetric rival that passes the visibility checks."""
+        return self.verdict.ambiguity
+
+    @property
+    def rivals(self) -> RivalFigures:
+        """The pose turned about the overlap's symmetry axes (core/gate/rivals.py)."""
+        return self.figures.rivals
 
     @property
     def candidate_margin(self) -> float | None:
@@ -103,7 +123,7 @@ class RegistrationResult:
             "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
             "attempts": self.attempts, "visibility": self.visibility.as_dict(),
             "ambiguity": self.ambiguity,
-            "rivals": [dataclasses.asdict(r) for r in self.rivals],
+            "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "gate": self.figures.columns(),
             "evidence": None if self.evidence is None else self.evidence.as_dict(),
             "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,
         }
@@ -266,24 +286,17 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
         if retry.accepted:
             result = _undo_turn(retry, turn)
     result.attempts = attempts
-    if result.accepted and search_region is not None:
-        reason = search_region_failure(result.transform, search_region)
-        if reason:
-            result.accepted, result.reason = False, reason
-    if result.accepted and config.acceptance.reverse_check:
-        _check_reverse(result, prepared_source, target, config, prior and prior.swapped())
+    figures = result.figures
+    if search_region is not None:
+        figures = dataclasses.replace(figures, **region_figures(result.transform, search_region))
+    if config.acceptance.reverse_check and passes(figures, config.acceptance):
+        reverse = _register_once(target, prepared_source, config, prior and prior.swapped())
+        figures = dataclasses.replace(figures, **reverse_figures(
+            result.transform, np.linalg.inv(reverse.transform), config.initial.inlier_threshold))
+    result.figures, result.verdict = figures, judge(figures, config.acceptance)
     result.timings["features"] += prepare_seconds
     result.timings["total"] = time.perf_counter() - start
     return result
-
-
-def _check_reverse(result: RegistrationResult, source: PreparedCloud, target: PreparedCloud,
-                   config: RegorConfig, prior: GravityPrior | None) -> None:
-    """Register target -> source; verification judges whether that gives the pose back."""
-    reverse = _register_once(target, source, config, prior)
-    reason = reverse_failure(result.transform, np.linalg.inv(reverse.transform), config.initial.inlier_threshold)
-    if reason:
-        result.accepted, result.reason = False, reason
 
 
 def regrid_rotation(seed: int, attempt: int) -> np.ndarray:
@@ -364,26 +377,21 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     lap("estimation")
 
     num_inliers = len(final_src)
-    fitness = num_inliers / len(src_cloud)
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
-    num_feature_inliers = int(initial_inlier.sum())
-    overlap = (final_src, final_tgt, tgt_cloud.normals[refined.target_index])
-    support = evidence(T, overlap, tgt_cloud.points, tgt_cloud.tree, init_src, initial_inlier,
-                       config.features.voxel_size, config.initial.inlier_threshold, config.features.fpfh_radius,
-                       initial.hypotheses_tried)
-    verdict = assess(T, src_cloud, tgt_cloud, num_inliers, fitness, (init_src, init_tgt),
-                     num_feature_inliers, covariance, uncertainty, refined.target_index, support, config, prior)
+    measured = measure(refined, src_cloud, tgt_cloud, (init_src, init_tgt, initial_inlier), covariance,
+                       uncertainty, initial.hypotheses_tried, config, prior)
+    verdict = judge(measured.figures, config.acceptance)
     lap("verification")
     timings["total"] = time.perf_counter() - start
     return RegistrationResult(
-        transform=T, accepted=verdict.accepted, reason=verdict.reason, num_inliers=num_inliers,
-        fitness=fitness, num_feature_inliers=num_feature_inliers, inlier_rmse=rmse, covariance=covariance,
-        initial=Correspondences(init_src, init_tgt, initial_inlier),
+        transform=T, verdict=verdict, figures=measured.figures, num_inliers=num_inliers,
+        fitness=measured.figures.fitness, num_feature_inliers=measured.figures.feature_inliers, inlier_rmse=rmse,
+        covariance=covariance, initial=Correspondences(init_src, init_tgt, initial_inlier),
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
-        selected=selected, stage_sizes=sizes, timings=timings, visibility=verdict.visibility,
-        rivals=verdict.rivals, ambiguity=verdict.ambiguity, evidence=support,
+        selected=selected, stage_sizes=sizes, timings=timings, visibility=measured.visibility,
+        evidence=measured.evidence,
         candidates=[Candidate(pose, support)
                     for pose, support in led_by(T, initial.candidates, config.initial.inlier_threshold)])
 

@@ -7,32 +7,30 @@ regor-bench (benchmark.py) only dispatches to them.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import datetime
 import os
 import platform
 import sys
 from pathlib import Path
 
+from ..core import Figures
+
+FIGURE_COLUMNS = [f.name for f in dataclasses.fields(Figures)]
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
-EVIDENCE_COLUMNS = ["surface_agreement", "independent_agreeing", "log10_false_alarms", "candidate_margin"]
+# the gate's columns: its verdict, every figure it judged (core/gate/figures.py, which
+# regor-calibrate-gate reads back), and figures reported beside them
+GATE_COLUMNS = ["reason", "failed_check", *FIGURE_COLUMNS, "map_seen", "ambiguity", "candidate_margin"]
 LEVEL_NOTE = (" Gravity prior (--level): every cloud's z axis is up (level-mounted sensors on ground "
               "vehicles); `-noprior` methods run without it.")
+
 
 def gate_columns(figures: dict) -> dict:
     """The verdict, the gate's figures and the stage timings of a RegistrationResult.summary(), as
     CSV columns (what regor-calibrate-gate reads)."""
-    visibility, evidence = figures["visibility"], figures["evidence"] or {}
     return {**{f"seconds_{stage}": figures["timings"][stage] for stage in STAGES},
-            "reason": figures["reason"], "num_inliers": figures["num_inliers"],
-            "fitness": figures["fitness"], "feature_inliers": figures["feature_inliers"],
-            "free_space_source": visibility["source_violation"],
-            "free_space_target": visibility["target_violation"],
-            "opposite_sides": visibility["opposite_sides"], "map_seen": visibility["map_seen"],
-            "ambiguity": figures["ambiguity"],
-            "rivals": ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:"
-                               f"{r['violation']}:{r['opposite_sides']}:{r['distance_deg']:.1f}"
-                               for r in figures["rivals"]),
-            **{name: evidence.get(name) for name in EVIDENCE_COLUMNS[:3]},
+            "reason": figures["reason"], "failed_check": figures["failed_check"], **figures["gate"],
+            "map_seen": figures["visibility"]["map_seen"], "ambiguity": figures["ambiguity"],
             "candidate_margin": figures["candidate_margin"]}
 
 

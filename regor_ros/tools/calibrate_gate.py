@@ -8,12 +8,13 @@ different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_spa
 was checked from both sides, then ``acceptance.min_feature_inliers_partial`` for a pose whose
 free space was not (a viewpoint unknown, as for a map): on the runs that had no full check, and
 on every run again with its viewpoints dropped, the target's or both (the run's figures without
-those sides; its rivals keep their recorded figures, which only makes the fit stricter). The
-structural checks (min_inliers, min_fitness, six constrained degrees of freedom), the checks
-against chance (``acceptance.min_surface_agreement``, a majority rule, and
-``acceptance.max_false_alarms``, the a-contrario bound of 1; read from the CSVs' evidence
-columns when present) and the opposite-sides check (``acceptance.max_opposite_sides``, a majority
-rule) are not fitted.
+those sides; its rivals keep their recorded figures, which only makes the fit stricter). Each run
+is judged by the gate's own judge (core/gate/judge.py) on the figures its CSV row recorded, so the
+calibration cannot drift from the gate. The checks not fitted keep the preset's values: the
+structural ones (min_inliers, min_fitness, six constrained degrees of freedom, the gravity prior),
+those against chance (``acceptance.min_surface_agreement``, a majority rule, and
+``acceptance.max_false_alarms``, the a-contrario bound of 1) and the opposite-sides check
+(``acceptance.max_opposite_sides``, a majority rule).
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
 choices the strictest (the lowest free-space and ambiguity thresholds, the highest feature
@@ -44,11 +45,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import RegorConfig
+from ..core import Figures, RegorConfig, ambiguity, passes, stack
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
 FEATURE_GRID = np.arange(0, 151, 5)
+FEATURE_AXIS = FEATURE_GRID[:, None]  # every feature threshold at once, on an axis before the runs'
 AMBIGUITY_GRID = [0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 1.0, 10.0]  # 10: off
 
 
@@ -57,30 +59,32 @@ class Sample:
     kind: str
     places: tuple            # the source's place, and the target's for a cross-place run
     correct: bool            # the pose is right (never for a cross-place run)
-    structural: bool         # passes the structural checks and those against chance
-    feature_inliers: int
-    violations: tuple           # (source, target) free-space figures; None for a side not checked
-    opposite: float | None = None  # matched surface seen from opposite sides
-    rivals: tuple = ()          # Rival fields of the symmetric rivals
-    run: str = ""               # which registration: seed, pair, file
+    figures: Figures         # what the gate judged it on, as regor-bench recorded it
+    run: str = ""            # which registration: seed, pair, file
+
+    @property
+    def feature_inliers(self) -> int:
+        return int(self.figures.feature_inliers)
 
     @property
     def violation(self) -> float | None:
-        known = [v for v in self.violations if v is not None]
-        return max(known) if known else None
+        worst = float(self.figures.worst_free_space)
+        return None if np.isnan(worst) else worst
+
+    @property
+    def violations(self) -> tuple:
+        """(source, target) free-space figures; None for a side not checked."""
+        return tuple(None if np.isnan(v) else float(v)
+                     for v in (self.figures.free_space_source, self.figures.free_space_target))
 
     @property
     def both_sides(self) -> bool:
-        return all(v is not None for v in self.violations)
-
-    @property
-    def max_opposite(self) -> float:
-        return RegorConfig.preset(self.kind).acceptance.max_opposite_sides
+        return bool(self.figures.both_sides)
 
     @property
     def passes_unfitted(self) -> bool:
-        """Passes every check that is not fitted: the structural ones, chance, opposite sides."""
-        return self.structural and (self.opposite is None or self.opposite <= self.max_opposite)
+        """Passes every check that is not fitted (the fitted ones at their most lenient)."""
+        return bool(passes(self.figures, replace(RegorConfig.preset(self.kind).acceptance, **LENIENT)))
 
     def involves(self, family: str) -> bool:
         """The run registers a cloud of that place (either cloud, for a cross-place run)."""
@@ -90,48 +94,36 @@ class Sample:
         """This run as if the target's viewpoint (and the source's too, unless ``keep_source``)
         were unknown: those free-space figures and the opposite-sides figure (it needs both) are
         gone; with none left the rivals lose theirs as well."""
-        if keep_source:
-            return replace(self, violations=(self.violations[0], None), opposite=None)
-        rivals = tuple((a, b, None, None, e) for a, b, _, _, e in self.rivals)
-        return replace(self, violations=(None, None), opposite=None, rivals=rivals)
+        unknown = float("nan")
+        figures = replace(self.figures, free_space_target=unknown, opposite_sides=unknown)
+        if not keep_source:
+            rivals = self.figures.rivals
+            blind = np.full_like(rivals.violation, unknown)
+            figures = replace(figures, free_space_source=unknown,
+                              rivals=replace(rivals, violation=blind, opposite_sides=blind))
+        return replace(self, figures=figures)
 
     def ambiguity(self, max_violation: float) -> float | None:
-        from ..core import Rival, ambiguity  # the gate's modules (the kernels): not for --help
-        return ambiguity([Rival(*r) for r in self.rivals], max_violation, self.max_opposite)
-
-
-def _rivals(text: str) -> tuple:
-    """'ratio:feature ratio:violation:opposite:deg;...' as written by regor-bench."""
-    return tuple((float(a), float(b), _number(c), _number(d), float(e)) for a, b, c, d, e in
-                 (item.split(":") for item in text.split(";") if item))
-
-
-def _number(text: str) -> float | None:
-    return float(text) if text not in ("", "None", "nan") else None
-
-
-def beyond_chance(row: dict, gate) -> bool:
-    """The pose passes the checks against chance (true for a CSV written before they existed)."""
-    agreement, false_alarms = _number(row.get("surface_agreement", "")), _number(row.get("log10_false_alarms", ""))
-    return ((agreement is None or agreement >= gate.min_surface_agreement)
-            and (false_alarms is None or false_alarms <= np.log10(gate.max_false_alarms)))
+        level = float(ambiguity(self.figures.rivals, max_violation,
+                                RegorConfig.preset(self.kind).acceptance.max_opposite_sides))
+        return None if np.isnan(level) else level
 
 
 def load_samples(paths: list[Path], method: str) -> list[Sample]:
+    """The runs of ``method`` the CSVs recorded with their gate figures (a run that raised is left
+    out). ValueError when a CSV lacks a figure the gate judges (written by an older regor-bench)."""
     samples = []
     for path in paths:
         for row in csv.DictReader(open(path)):
             if row["method"] != method or row["error"]:
                 continue
-            kind = row["kind"]
-            gate = RegorConfig.preset(kind).acceptance
+            try:
+                figures = Figures.from_columns(row)
+            except ValueError as exc:
+                raise ValueError(f"{path}: {exc}") from None
             names = row["pair"].split(" -> ")
             samples.append(Sample(
-                kind, tuple(place(n) for n in names), row["success"] == "True",
-                int(row["num_inliers"]) >= gate.min_inliers and float(row["fitness"]) >= gate.min_fitness
-                and "six degrees" not in row["reason"] and beyond_chance(row, gate),
-                int(row["feature_inliers"]), (_number(row["free_space_source"]), _number(row["free_space_target"])),
-                _number(row["opposite_sides"]), _rivals(row["rivals"]),
+                row["kind"], tuple(place(n) for n in names), row["success"] == "True", figures,
                 f"{'seed ' + row['seed'] + ' ' if row.get('seed') else ''}{row['pair']} "
                 f"({path.parent.name}/{path.name})"))
     return samples
@@ -139,46 +131,43 @@ def load_samples(paths: list[Path], method: str) -> list[Sample]:
 
 Thresholds = tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
 THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
+# the fitted thresholds where they stop nothing: what the checks that are not fitted publish alone
+LENIENT = dict(zip(THRESHOLD_NAMES, (1.0, 0, 10.0, 0), strict=True))
 
 
 class Runs:
-    """Samples as arrays, so that a threshold setting is judged on all of them at once (the fit tries
-    ~18,000 settings per fold); the rivals' ambiguity is worked out once per violation threshold."""
+    """Samples of one kind as one Figures of arrays, so that the judge rules on all of them at once
+    (the fit tries ~18,000 settings per fold), for many values of a threshold at a time."""
 
     def __init__(self, samples: list[Sample]):
+        kinds = {s.kind for s in samples}
+        if len(kinds) > 1:
+            raise ValueError(f"runs of one kind are judged together, not {sorted(kinds)}")
         self.samples = samples
+        self.acceptance = RegorConfig.preset(kinds.pop() if kinds else "indoor").acceptance
+        self.figures = stack([s.figures for s in samples])
         self.correct = np.array([s.correct for s in samples], dtype=bool)
-        self.unfitted = np.array([s.passes_unfitted for s in samples], dtype=bool)
-        self.features = np.array([s.feature_inliers for s in samples], dtype=int)
-        self.both_sides = np.array([s.both_sides for s in samples], dtype=bool)
-        self.violation = np.array([np.nan if s.violation is None else s.violation for s in samples], dtype=float)
-        self._ambiguity = {}
 
-    def ambiguity(self, max_violation: float) -> np.ndarray:
-        """Each run's ambiguity at this violation threshold (NaN: no rival counts)."""
-        if max_violation not in self._ambiguity:
-            values = [s.ambiguity(max_violation) for s in self.samples]
-            self._ambiguity[max_violation] = np.array([np.nan if a is None else a for a in values], dtype=float)
-        return self._ambiguity[max_violation]
+    def published(self, thresholds) -> np.ndarray:
+        """Which runs (last axis) a gate with these thresholds publishes; a threshold may be an
+        array of values shaped to broadcast before the runs' axis."""
+        return passes(self.figures, replace(self.acceptance, **dict(zip(THRESHOLD_NAMES, thresholds, strict=True))))
 
-    def published(self, thresholds: Thresholds) -> np.ndarray:
-        """Which runs a gate with these thresholds publishes."""
-        violation, min_features, max_ambiguity, min_features_partial = thresholds
-        ambiguous = self.ambiguity(violation)
-        with np.errstate(invalid="ignore"):
-            return (self.unfitted
-                    & (self.features >= np.where(self.both_sides, min_features, min_features_partial))
-                    & ~(self.violation > violation) & ~(ambiguous >= max_ambiguity))
+    def counts(self, thresholds):
+        """(published correct, published wrong), per threshold setting when they are arrays."""
+        shown = self.published(thresholds)
+        return (shown & self.correct).sum(axis=-1), (shown & ~self.correct).sum(axis=-1)
 
     def score(self, thresholds: Thresholds):
         """(correct registrations, published correct, published wrong, registrations)."""
-        shown = self.published(thresholds)
-        return (int(self.correct.sum()), int((shown & self.correct).sum()), int((shown & ~self.correct).sum()),
-                len(self.samples))
+        right, wrong = self.counts(thresholds)
+        return int(self.correct.sum()), int(right), int(wrong), len(self.samples)
 
 
 def score(samples: list[Sample], thresholds: Thresholds):
     """(correct registrations, published correct, published wrong, registrations)."""
+    if not samples:
+        return 0, 0, 0, 0
     return Runs(samples).score(thresholds)
 
 
@@ -206,20 +195,18 @@ def fit(samples: list[Sample], kind: str) -> Thresholds:
     violation, min_features, max_ambiguity = _fit_full(full, kind)
     if all(s.correct for s in partial):
         return violation, min_features, max_ambiguity, max(min_features, preset_thresholds(kind)[3])
-    runs = Runs(partial)
-    safe = [int(f) for f in FEATURE_GRID if f >= min_features
-            and runs.score((violation, min_features, max_ambiguity, int(f)))[2] == 0]
-    if not safe:
+    right, wrong = Runs(partial).counts((violation, min_features, max_ambiguity, FEATURE_AXIS))
+    safe = (FEATURE_GRID >= min_features) & (wrong == 0)
+    if not safe.any():
         return violation, min_features, max_ambiguity, int(FEATURE_GRID[-1])
-    return violation, min_features, max_ambiguity, strictest_features(
-        runs, safe, lambda f: (violation, min_features, max_ambiguity, f))
+    return violation, min_features, max_ambiguity, strictest_features(safe, right)
 
 
-def strictest_features(runs: Runs, safe: list[int], thresholds) -> int:
-    """The highest of the ``safe`` feature thresholds (ascending, none publishing a wrong pose)
-    that still publishes as many correct runs as the lowest; ``thresholds(f)`` the setting at f."""
-    most = runs.score(thresholds(safe[0]))[1]
-    return max(f for f in safe if runs.score(thresholds(f))[1] == most)
+def strictest_features(safe: np.ndarray, right: np.ndarray) -> int:
+    """The highest of the safe feature thresholds (``safe``: which of FEATURE_GRID publish no
+    wrong pose) that still publishes as many correct runs (``right``, per threshold) as the lowest."""
+    most = right[np.argmax(safe)]
+    return int(FEATURE_GRID[safe & (right == most)].max())
 
 
 def stable_fit(samples: list[Sample], kind: str, fitter=fit) -> Thresholds:
@@ -258,16 +245,17 @@ def _fit_full(samples: list[Sample], kind: str):
     runs, best_count, best = Runs(samples), -1, None
     for v in VIOLATION_GRID:          # ascending: the first of tied settings is the strictest
         for a in AMBIGUITY_GRID:
-            safe = [int(f) for f in FEATURE_GRID if runs.score((v, int(f), a, int(f)))[2] == 0]
-            if not safe:
+            right, wrong = runs.counts((v, FEATURE_AXIS, a, FEATURE_AXIS))
+            safe = wrong == 0
+            if not safe.any():
                 continue
-            count = runs.score((v, safe[0], a, safe[0]))[1]   # the lowest safe feature threshold publishes most
+            count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
             if count > best_count:
-                best_count, best = count, (v, safe, a)
+                best_count, best = count, (float(v), safe, right, a)
     if best is None:   # nothing is safe: publish nothing
         return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1]), AMBIGUITY_GRID[0]
-    v, safe, a = best
-    return v, strictest_features(runs, safe, lambda f: (v, f, a, f)), a
+    v, safe, right, a = best
+    return v, strictest_features(safe, right), a
 
 
 def families(samples: list[Sample]) -> list[str]:
@@ -414,7 +402,10 @@ def main(argv=None) -> int:
     parser.add_argument("--method", default="regor", help="the Regor variant whose figures are used")
     parser.add_argument("--out", type=Path, help="also write the report here (markdown)")
     args = parser.parse_args(argv)
-    samples = load_samples(args.csv, args.method)
+    try:
+        samples = load_samples(args.csv, args.method)
+    except ValueError as exc:
+        parser.error(str(exc))
     if not samples:
         parser.error(f"no rows of method {args.method!r} in {', '.join(map(str, args.csv))}")
     text = ("# Quality gate calibration, leave one place out\n\n" + __doc__.split("\n\n", 1)[1] + "\n"

@@ -41,7 +41,7 @@ from ..core import (
     warm_up,
 )
 from ..io.map_file import load_map_file, read_trajectory, write_trajectory
-from .bench_results import EVIDENCE_COLUMNS, STAGES, gate_columns, selected, write_results
+from .bench_results import GATE_COLUMNS, STAGES, gate_columns, selected, write_results
 from .peers import NO_PRIOR, PLANE, kiss_matcher_pose
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
@@ -53,9 +53,8 @@ STRESS_INPUTS = ("single", "thinned", "sequence")
 THINNING = 4  # --stress: every 4th point of a scan, a sparse sensor's density (64 beams -> 16)
 MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
-              *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "num_inliers",
-              "fitness", "feature_inliers", "free_space_source", "free_space_target", "opposite_sides",
-              "map_seen", "ambiguity", "rivals", *EVIDENCE_COLUMNS, "error_sigmas", "reason", "error"]
+              *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "error_sigmas",
+              *GATE_COLUMNS, "error"]
 TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
                f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "

@@ -35,7 +35,7 @@ from ..core import (
     translation_error,
 )
 from .bench_results import (
-    EVIDENCE_COLUMNS,
+    GATE_COLUMNS,
     LEVEL_NOTE,
     STAGES,
     gate_columns,
@@ -54,9 +54,7 @@ UP_Z = np.array([0.0, 0.0, 1.0])  # a level-mounted sensor's up in its own frame
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total",
               *(f"seconds_{stage}" for stage in STAGES), "inliers_final",
-              "final_count", "inliers_initial", "initial_count", "reason", "num_inliers", "fitness",
-              "feature_inliers", "free_space_source", "free_space_target", "opposite_sides", "ambiguity", "rivals",
-              *EVIDENCE_COLUMNS, "error"]
+              "final_count", "inliers_initial", "initial_count", *GATE_COLUMNS, "error"]
 
 
 def load_pairs(folder: Path, name_filter: str | None):

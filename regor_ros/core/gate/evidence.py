@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 
-from .geometry import transform_points
+from ..geometry import transform_points
 
 DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
 DENSITY_SEED = 0

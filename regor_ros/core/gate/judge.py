@@ -1,0 +1,148 @@
+"""The one judge of a pose: every check, in order, each with its reason.
+
+The pipeline measures a pose's figures (gate/measure.py) and calls ``judge``; regor-calibrate-gate
+rebuilds the figures from the benchmark's CSVs and calls ``passes`` with the thresholds it tries, so
+the calibration cannot drift from the gate. Each check's test is written on numpy arrays: figures
+(one entry per pose) and thresholds (an array of values to try) broadcast against each other.
+The checks, in the order a reason names the first that fails:
+- measurable: enough inliers that fix all six degrees of freedom, enough fitness, and inside the
+  gravity prior (a tipped-over pose is no candidate whatever else it shows);
+- beyond chance (gate/evidence.py: not fitted);
+- right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
+  matches (more when free space was not checked from both sides), free space, opposite sides,
+  and no symmetric rival about as well supported;
+- inside the hint's search region, and given back by the reverse registration (when run).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .figures import Figures, RivalFigures
+
+RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
+REVERSE_MAX_DEG = 10.0  # the reverse registration agrees when within these
+REVERSE_MAX_TAU = 3.0   # (translation in units of initial.inlier_threshold)
+
+
+def ambiguity(rivals: RivalFigures, max_violation, max_opposite):
+    """How well the best rival that is distinct from the pose and passes the visibility checks
+    explains the clouds, relative to the pose: the lesser of its point and feature support ratios
+    (NaN when there is no such rival). Over the last axis (the rivals)."""
+    with np.errstate(invalid="ignore"):
+        counts = ((rivals.distance_deg > RIVAL_MIN_DEG) & ~(rivals.violation > np.expand_dims(max_violation, -1))
+                  & ~(rivals.opposite_sides > np.expand_dims(max_opposite, -1)))
+    ratio = np.where(counts, np.minimum(rivals.inlier_ratio, rivals.feature_ratio), -np.inf)
+    best = ratio.max(axis=-1, initial=-np.inf)
+    return np.where(np.isinf(best), np.nan, best)
+
+
+def _ambiguity(f: Figures, a):
+    return ambiguity(f.rivals, a.max_free_space_violation, a.max_opposite_sides)
+
+
+def _needed_features(f: Figures, a):
+    return np.where(f.both_sides, a.min_feature_inliers, a.min_feature_inliers_partial)
+
+
+def _features_reason(f: Figures, a) -> str:
+    if f.both_sides:
+        name, needed, why = "min_feature_inliers", a.min_feature_inliers, ""
+    else:  # visibility cannot catch what it would have: features must stand on their own
+        name, needed, why = ("min_feature_inliers_partial", a.min_feature_inliers_partial,
+                             ": free space was not checked from both sides, a viewpoint is unknown "
+                             "or too little of one cloud is in the other's view")
+    return f"only {f.feature_inliers:.0f} feature matches agree with the pose (acceptance.{name}={needed}{why})"
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    fails: Callable   # (figures, acceptance) -> bool, or a bool array where either holds arrays
+    reason: Callable  # (figures, acceptance) -> str, for one pose
+
+
+# NaN compares False: a figure not measured fails no check
+CHECKS = (
+    Check("min_inliers", lambda f, a: f.num_inliers < a.min_inliers,
+          lambda f, a: f"only {f.num_inliers:.0f} inliers (acceptance.min_inliers={a.min_inliers})"),
+    Check("constrained", lambda f, a: ~np.asarray(f.constrained, dtype=bool),
+          lambda f, a: "the inliers do not constrain all six degrees of freedom (plane or line?)"),
+    Check("min_fitness", lambda f, a: f.fitness < a.min_fitness,
+          lambda f, a: f"fitness {f.fitness:.3f} below acceptance.min_fitness={a.min_fitness}"),
+    Check("gravity_tilt", lambda f, a: ~np.asarray(f.tilt_inside, dtype=bool),
+          lambda f, a: (f"the pose tilts the source's up by {f.tilt_deg:.1f} deg from the target's "
+                        f"(gravity.max_tilt={f.tilt_allowed_deg:g}): tipped over")),
+    Check("gravity_height", lambda f, a: ~np.asarray(f.height_inside, dtype=bool),
+          lambda f, a: (f"the pose puts the source's sensor {f.height_offset:+.2f} m from the height the "
+                        f"target was seen from, {f.height_distance:.1f} m away (allowed {f.height_allowed:.2f} m: "
+                        "gravity.height_tolerance plus gravity.max_slope over that distance)")),
+    Check("min_surface_agreement", lambda f, a: f.surface_agreement < a.min_surface_agreement,
+          lambda f, a: (f"only {100 * f.surface_agreement:.0f} % of the overlap lies on the target's surfaces "
+                        f"at the keypoint spacing (acceptance.min_surface_agreement={a.min_surface_agreement}): "
+                        "the clouds touch, they do not coincide")),
+    Check("max_false_alarms", lambda f, a: f.log10_false_alarms > np.log10(a.max_false_alarms),
+          lambda f, a: (f"chance alone gives {f.independent_agreeing:.0f} independent agreeing feature matches "
+                        f"in about 10^{f.log10_false_alarms:.1f} of the poses this search tried "
+                        f"(acceptance.max_false_alarms={a.max_false_alarms}): too little feature support "
+                        "for a target this size")),
+    Check("min_feature_inliers", lambda f, a: f.feature_inliers < _needed_features(f, a), _features_reason),
+    Check("max_free_space_violation", lambda f, a: f.worst_free_space > a.max_free_space_violation,
+          lambda f, a: (f"{100 * f.worst_free_space:.0f} % of one cloud lies in space the other sensor saw "
+                        f"through (acceptance.max_free_space_violation={a.max_free_space_violation}): "
+                        "surfaces pass through each other, the pose is wrong")),
+    Check("max_opposite_sides", lambda f, a: f.opposite_sides > a.max_opposite_sides,
+          lambda f, a: (f"{100 * f.opposite_sides:.0f} % of the shared surface was seen from opposite sides "
+                        f"(acceptance.max_opposite_sides={a.max_opposite_sides}): the clouds are back to back, "
+                        "the pose is wrong")),
+    Check("max_ambiguity", lambda f, a: _ambiguity(f, a) >= a.max_ambiguity,
+          lambda f, a: (f"the pose turned by 180 deg fits with {100 * _ambiguity(f, a):.0f} % of its support "
+                        f"(acceptance.max_ambiguity={a.max_ambiguity}): a symmetric scene, neither pose can "
+                        "be trusted")),
+    Check("search_region", lambda f, a: f.region_offset > f.region_radius,
+          lambda f, a: (f"the pose puts the source {f.region_offset:.1f} m from the hinted position, outside "
+                        f"its {f.region_radius:.1f} m search region")),
+    Check("reverse_check",
+          lambda f, a: (f.reverse_turn_deg >= REVERSE_MAX_DEG) | (f.reverse_offset_tau >= REVERSE_MAX_TAU),
+          lambda f, a: (f"registering target to source gives another pose ({f.reverse_turn_deg:.0f} deg, "
+                        f"{f.reverse_offset_tau:.1f} inlier thresholds away): a different place or an ambiguous "
+                        "scene (acceptance.reverse_check)")),
+)
+MEASURABLE = CHECKS[:5]  # the checks before which a pose's rivals are not worth refining
+PASSED = len(CHECKS)
+
+
+def first_failure(figures: Figures, acceptance, checks=CHECKS):
+    """The index in ``checks`` of the first check each pose fails; len(checks) where it passes all."""
+    first = len(checks)
+    with np.errstate(invalid="ignore"):
+        for index in reversed(range(len(checks))):
+            first = np.where(checks[index].fails(figures, acceptance), index, first)
+    return first
+
+
+def passes(figures: Figures, acceptance, checks=CHECKS):
+    """Whether each pose passes every one of ``checks`` (bool, or an array where figures or
+    thresholds are arrays)."""
+    return first_failure(figures, acceptance, checks) == len(checks)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    accepted: bool
+    reason: str            # why it was not accepted; empty when accepted
+    failed: str = ""       # the name of the check that failed (Check.name); empty when accepted
+    ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
+
+
+def judge(figures: Figures, acceptance) -> Verdict:
+    """The verdict on one pose, naming the first check it fails."""
+    index = int(first_failure(figures, acceptance))
+    level = float(_ambiguity(figures, acceptance))
+    shown = None if np.isnan(level) else level
+    if index == PASSED:
+        return Verdict(True, "", "", shown)
+    check = CHECKS[index]
+    return Verdict(False, check.reason(figures, acceptance), check.name, shown)
