@@ -60,10 +60,12 @@ class SeenCloud:
 
     @classmethod
     def single(cls, points, viewpoint: np.ndarray | None) -> SeenCloud:
+        """One scan seen from ``viewpoint`` (None: unknown)."""
         return cls([points], None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(1, 3))
 
     @property
     def points(self) -> np.ndarray:
+        """Every part's points in one array."""
         return np.vstack(self.parts)
 
     def moved(self, T: np.ndarray) -> SeenCloud:

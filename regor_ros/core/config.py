@@ -296,6 +296,7 @@ class RegorConfig:
                 yield f.name, value, f
 
     def to_flat(self) -> dict[str, Any]:
+        """Every setting by its dotted name (the ROS parameters' names)."""
         return {name: value for name, value, _ in self.parameters()}
 
     def replace(self, overrides: dict[str, Any]) -> RegorConfig:

@@ -55,6 +55,7 @@ def poses_close(A: np.ndarray, B: np.ndarray, angle_deg: float, translation: flo
 
 
 def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
+    """Robust weights: a residual at ``threshold`` counts half, far ones fade without a cut-off."""
     return 1.0 / (1.0 + (residual / threshold) ** 2)
 
 
@@ -77,6 +78,8 @@ def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold
 
 @dataclass
 class PointRefinement:
+    """A refined pose with its inlier keypoint pairs and their residuals."""
+
     transform: np.ndarray
     source_index: np.ndarray   # final inlier pairs (source keypoint, nearest target keypoint)
     target_index: np.ndarray

@@ -69,6 +69,7 @@ class CellTable:
 
     @property
     def cells(self) -> int:
+        """How many cells the index has."""
         return len(self.bounds) - 1
 
     @classmethod

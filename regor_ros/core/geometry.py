@@ -20,6 +20,7 @@ def to_matrix(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 3) points mapped by the 4x4 transform T."""
     return points @ T[:3, :3].T + T[:3, 3]
 
 

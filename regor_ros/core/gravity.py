@@ -33,6 +33,8 @@ EDGE_ROUNDING_DEG = 1e-6  # a rotation clamped onto the tilt cone's edge lands t
 
 @dataclass(frozen=True)
 class GravityPrior:
+    """Which way is up in each cloud, and how far a pose may tilt or lift the source's sensor."""
+
     source_up: np.ndarray     # (3,) unit, in the source frame
     target_up: np.ndarray     # (3,) unit, in the target frame
     max_tilt_deg: float

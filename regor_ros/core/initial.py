@@ -32,6 +32,8 @@ SUPPORT_ROWS = 256  # source keypoints that rank hypotheses by candidate support
 
 @dataclass
 class InitialResult:
+    """The initial stage's pose, its inlier correspondences and the distinct places it found."""
+
     transform: np.ndarray     # T_m, post-refined on all correspondences
     inliers: np.ndarray       # (N_c,) bool: correspondences within tau of T_m (G0)
     hypotheses_scored: int    # distinct hypotheses compared by FS-TCD

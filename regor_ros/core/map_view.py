@@ -59,6 +59,7 @@ class MapView:
     @classmethod
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
               trajectory: np.ndarray | None = None) -> MapView:
+        """The map's surface at ``resolution_deg``, seen from its trajectory thinned to every few voxels."""
         positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, VIEW_SPACING * voxel)
         return cls(surface, voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)

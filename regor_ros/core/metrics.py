@@ -21,15 +21,18 @@ def random_rigid_motion(seed, max_translation: float = 1.0) -> np.ndarray:
 
 
 def rotation_error_deg(T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    """The angle of the rotation between two poses [deg]."""
     cos = (np.trace(T_est[:3, :3].T @ T_gt[:3, :3]) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def translation_error(T_est: np.ndarray, T_gt: np.ndarray) -> float:
+    """The distance between two poses' translations [m]."""
     return float(np.linalg.norm(T_est[:3, 3] - T_gt[:3, 3]))
 
 
 def is_success(T_est: np.ndarray, T_gt: np.ndarray, kind: str) -> bool:
+    """Within the benchmark's rotation and translation thresholds for this kind of data."""
     max_re, max_te = SUCCESS_THRESHOLDS[kind]
     return rotation_error_deg(T_est, T_gt) < max_re and translation_error(T_est, T_gt) < max_te
 

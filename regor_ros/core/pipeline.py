@@ -48,6 +48,8 @@ REGRID_STREAM = 2  # keeps the retry rotations apart from other seeded draws of 
 
 @dataclass
 class Correspondences:
+    """Point pairs (source, target) with which of them agree with the pose."""
+
     source: np.ndarray   # (n, 3) source keypoints (source frame)
     target: np.ndarray   # (n, 3) target keypoints (target frame)
     inlier: np.ndarray   # (n,) bool, consistent with the estimated pose
@@ -65,6 +67,8 @@ class Candidate:
 
 @dataclass
 class RegistrationResult:
+    """register()'s answer: the pose, the gate's verdict and every figure behind it."""
+
     transform: np.ndarray          # 4x4 T_target_source: maps source points into the target frame
     verdict: Verdict               # the quality gate's (core/gate/judge.py) on ``figures``
     figures: Figures               # everything the gate judged the pose on

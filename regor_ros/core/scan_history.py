@@ -24,6 +24,8 @@ ODOMETRY_SECONDS = 60.0  # odometry kept: more than any accumulation window
 
 @dataclass
 class AccumulationLimits:
+    """How many recent scans are fused into one source, and over how much motion."""
+
     scans: int = 1               # scans fused, the newest included (1: the scan alone)
     max_distance: float = 10.0   # metres the sensor may have moved from the oldest fused scan
     max_age: float = 10.0        # seconds the oldest fused scan may be older than the newest

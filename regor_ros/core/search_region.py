@@ -29,6 +29,7 @@ class SearchRegion:
 
     @classmethod
     def checked(cls, centre, radius) -> SearchRegion:
+        """A region from user input; RegistrationError says what is wrong with it."""
         c = np.asarray(centre, dtype=np.float64)
         if c.shape != (3,) or not np.isfinite(c).all():
             raise RegistrationError(f"search region: centre must be three finite numbers, got {centre!r}")

@@ -49,6 +49,7 @@ class Evidence:
     log10_false_alarms: float     # log10(hypotheses tried x binomial tail of the agreeing count)
 
     def as_dict(self):
+        """The figures as plain values, for summaries and JSON."""
         return dict(vars(self))
 
 

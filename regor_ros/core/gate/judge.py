@@ -59,6 +59,8 @@ def _features_reason(f: Figures, a) -> str:
 
 @dataclass(frozen=True)
 class Check:
+    """One check of the gate: its name (Verdict.failed), its test and its reason."""
+
     name: str
     fails: Callable   # (figures, acceptance) -> bool, or a bool array where either holds arrays
     reason: Callable  # (figures, acceptance) -> str, for one pose
@@ -131,6 +133,8 @@ def passes(figures: Figures, acceptance, checks=CHECKS):
 
 @dataclass(frozen=True)
 class Verdict:
+    """The gate's ruling on one pose."""
+
     accepted: bool
     reason: str            # why it was not accepted; empty when accepted
     failed: str = ""       # the name of the check that failed (Check.name); empty when accepted

@@ -23,6 +23,8 @@ from .visibility import VisibilityFigures, visibility_figures
 
 @dataclass
 class Measured:
+    """A pose's gate figures, with the visibility and evidence figures they were taken from."""
+
     figures: Figures
     visibility: VisibilityFigures  # with what the figures leave out: how many points each side saw
     evidence: Evidence

@@ -61,6 +61,7 @@ class VisibilityFigures:
                 "opposite_sides": measured(self.opposite_sides)}
 
     def as_dict(self):
+        """The figures as plain values, for summaries and JSON."""
         return {"source_violation": self.source_violation, "target_violation": self.target_violation,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
                 "target_seen": self.target_seen, "map_seen": self.map_seen, "worst": self.worst,
