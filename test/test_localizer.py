@@ -57,7 +57,7 @@ def test_the_worker_registers_the_newest_pair_and_reports_the_pose():
     finally:
         localizer.stop(5.0)
     assert outcome.result.accepted and outcome.pose is not None and outcome.target_frame == "map"
-    T, covariance = outcome.pose
+    T, covariance = outcome.pose.transform, outcome.pose.covariance
     assert rotation_error_deg(T, TRUTH) < 5 and translation_error(T, TRUTH) < 0.1
     assert covariance.shape == (6, 6)
     assert outcome.status["source_frame"] == "camera" and outcome.status["registrations"] == 1
@@ -79,7 +79,7 @@ def test_on_demand_a_relocalize_call_waits_for_the_next_source():
         call.join(WAIT_S)
     finally:
         localizer.stop(5.0)
-    assert answers and answers[0][0] and answers[0][1].startswith("pose published")
+    assert answers and answers[0].accepted and answers[0].text.startswith("pose published")
     assert len(recorder.outcomes) == 1
 
 

@@ -51,6 +51,23 @@ class Hint:
 
 
 @dataclass(frozen=True)
+class PublishedPose:
+    """The pose that goes out: the sensor's in the target frame, or its base's with a base_frame."""
+
+    transform: np.ndarray   # 4x4
+    covariance: np.ndarray  # 6x6 over (x, y, z, roll, pitch, yaw)
+
+
+@dataclass(frozen=True)
+class Answer:
+    """What one registration came to, for a relocalize call waiting for it."""
+
+    serial: int        # the source cloud's (InputBuffer's count), 0 before any
+    accepted: bool     # the pose was published as accepted
+    text: str          # what happened, in a line
+
+
+@dataclass(frozen=True)
 class Outcome:
     """One registration, for the node to publish."""
 
@@ -58,7 +75,7 @@ class Outcome:
     result: RegistrationResult
     target_frame: str
     status: dict       # the status message's fields beside the result's own
-    pose: tuple | None  # (T, covariance) published: the sensor's, or its base's; None when withheld
+    pose: PublishedPose | None  # None when withheld
     sensor_to_base: np.ndarray | None  # T_base_sensor inverted, with a base_frame (the candidates')
     answer: str        # what happened, in a line (a relocalize call's reply)
 
@@ -87,7 +104,7 @@ class Localizer:
         self.map_frame = ""
         self._map_key: MapKey | None = None
         self._hint: Hint | None = None                 # in force until a pose is accepted
-        self._answer = (0, False, "")                  # (source serial, accepted, what happened)
+        self._answer = Answer(0, False, "")            # the latest registration's
         self._history = ScanHistory(self._history_capacity())   # scans and odometry, for accumulation
         self._imu = ImuUp() if self.settings.imu_topic else None  # the source's up, for the gravity prior
         self._warned: dict[str, float] = {}            # kind of bad input -> when it was last logged
@@ -185,24 +202,23 @@ class Localizer:
 
     # --- requests ---
 
-    def relocalize(self) -> tuple[bool, str]:
-        """(accepted, what happened) of the registration of the next source, waiting for it up
-        to relocalize_timeout."""
+    def relocalize(self) -> Answer:
+        """The registration of the next source, waiting for it up to relocalize_timeout."""
         timeout = self.settings.relocalize_timeout
         if not self.active:
-            return False, f"not registering: the node is {self.health.lifecycle} (activate it)"
+            return Answer(0, False, f"not registering: the node is {self.health.lifecycle} (activate it)")
         with self.lock:
             after = self._inputs.serials["source"]
             self._inputs.relocalize_after = after
             self.lock.notify_all()
-            answered = self.lock.wait_for(lambda: self._answer[0] > after or self._stopping, timeout)
+            answered = self.lock.wait_for(lambda: self._answer.serial > after or self._stopping, timeout)
             self._inputs.relocalize_after = None
-            _, accepted, what = self._answer
+            answer = self._answer
             no_map = self.settings.mode == "map" and self.map is None
         if answered:
-            return accepted, what
+            return answer
         waiting = "no map yet" if no_map else "no source cloud arrived"
-        return False, f"{waiting} within relocalize_timeout={timeout:g} s"
+        return Answer(answer.serial, False, f"{waiting} within relocalize_timeout={timeout:g} s")
 
     def change(self, changed) -> None:
         """Apply ``changed(config, settings) -> (config, settings)`` (a parameter change; it raises
@@ -290,9 +306,9 @@ class Localizer:
             if isinstance(job, PrepareMap):
                 self._prepare_map(job, config, settings)
             else:
-                accepted, what = self._register(job, config, settings, hint)
+                answer = self._register(job, config, settings, hint)
                 with self.lock:
-                    self._answer = (job.source.serial, accepted, what)
+                    self._answer = answer
                     self.lock.notify_all()
 
     def _prepare_map(self, job: PrepareMap, config, settings) -> None:
@@ -345,9 +361,9 @@ class Localizer:
             sequence, info = self._history.sequence(src.stamp, limits, settings.viewpoints()[0])
         return (src.points if sequence is None else sequence), info
 
-    def _register(self, job: Register, config, settings, hint: Hint | None) -> tuple[bool, str]:
+    def _register(self, job: Register, config, settings, hint: Hint | None) -> Answer:
         """Register the source against the pair's target or (map mode) the prepared map, and
-        report it; (pose published as accepted, what happened)."""
+        report it."""
         src = job.source
         source_viewpoint, target_viewpoint = settings.viewpoints()
         if settings.mode == "map":
@@ -368,14 +384,14 @@ class Localizer:
         except RegistrationError as exc:
             self.health.last_error = str(exc)
             self.bad_input(f"registration skipped: {exc}")
-            return False, f"registration skipped: {exc}"
+            return Answer(src.serial, False, f"registration skipped: {exc}")
         except Exception as exc:  # keep the node alive whatever the input did
             self.health.last_error = f"{type(exc).__name__}: {exc}"
             self.logger.error(f"registration failed: {type(exc).__name__}: {exc}")
-            return False, f"registration failed: {type(exc).__name__}: {exc}"
+            return Answer(src.serial, False, f"registration failed: {type(exc).__name__}: {exc}")
         with self.lock:
             if self._stopping:  # the node's publishers are going away
-                return False, "node stopping"
+                return Answer(src.serial, False, "node stopping")
             self.stats["registrations"] += 1
             self.stats["accepted_poses"] += int(result.accepted)
             self.health.last_error = self.health.last_bad_input = ""
@@ -402,7 +418,7 @@ class Localizer:
         pose = None
         if result.accepted or settings.publish_rejected:
             # the robot's pose, for Nav2: the sensor's composed with its mounting
-            pose = ((result.transform, result.covariance) if base is None
-                    else attached_pose(result.transform, result.covariance, base))
+            pose = (PublishedPose(result.transform, result.covariance) if base is None
+                    else PublishedPose(*attached_pose(result.transform, result.covariance, base)))
         self._on_outcome(Outcome(src, result, target_frame, status, pose, base, answer))
-        return result.accepted, answer
+        return Answer(src.serial, result.accepted, answer)

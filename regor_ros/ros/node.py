@@ -212,12 +212,12 @@ class RegisterNode(LifecycleNode):
 
     def _on_relocalize(self, request, response):
         """Answer with the registration of the next source: its verdict and the reason."""
-        response.success, response.message = self.localizer.relocalize()
+        answer = self.localizer.relocalize()
+        response.success, response.message = answer.accepted, answer.text
         return response
 
     def _on_load_map(self, request, response):
-        """Swap the map for another file (Localizer.use_map_url); the cache is used as at start,
-        and the old map stays until the new one is ready, and when it fails."""
+        """Swap the map for another file (Localizer.use_map_url); the old one stays until it is ready or if it fails."""
         if self.localizer.settings.mode != "map":
             response.result = LoadMap.Response.RESULT_UNDEFINED_FAILURE
             self.get_logger().error("load_map: the node is in pairs mode (mode:=map loads maps)")
@@ -246,8 +246,8 @@ class RegisterNode(LifecycleNode):
                                                              outcome.sensor_to_base))
         if outcome.pose is None:
             return
-        self.pose_pub.publish(messages.pose_stamped(outcome.pose[0], header))
-        own = messages.pose_with_covariance(*outcome.pose, header)
+        self.pose_pub.publish(messages.pose_stamped(outcome.pose.transform, header))
+        own = messages.pose_with_covariance(outcome.pose.transform, outcome.pose.covariance, header)
         self._own_poses.append(messages.pose_key(own))
         self.pose_cov_pub.publish(own)
         if settings.publish_aligned_cloud:
