@@ -127,7 +127,8 @@ class RegistrationResult:
             "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
             "attempts": self.attempts, "visibility": self.visibility.as_dict(),
             "ambiguity": self.ambiguity,
-            "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "gate": self.figures.columns(),
+            "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "carried_by": self.verdict.carried_by,
+            "gate": self.figures.columns(),
             "evidence": None if self.evidence is None else self.evidence.as_dict(),
             "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,
         }
@@ -428,14 +429,18 @@ def _visible_instead(refined, selected: str, candidates: list, source: PreparedC
     """(refinement, selected): the estimator's refinement of the best other place the search found
     that passes the free-space check, in place of ``refined`` (core/visible_candidate.py), or
     ``refined`` itself when there is none."""
-    def refine(T: np.ndarray):
-        point_level = _refine(T, source, target, config, prior)
-        return (_plane_refine(point_level, source, target, config, prior) if config.estimation.plane_refinement
-                else point_level)
-
-    picked = visible_candidate(refined.transform, candidates, config.estimation.visible_candidates, refine,
-                               plausible, config.initial.inlier_threshold)
+    picked = visible_candidate(refined.transform, candidates, config.estimation.visible_candidates,
+                               lambda T: _refined(T, source, target, config, prior), plausible,
+                               config.initial.inlier_threshold)
     return (refined, selected) if picked is None else (picked, "candidate")
+
+
+def _refined(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+             prior: GravityPrior | None):
+    """The estimator's refinement of another pose: point level, then planes when configured."""
+    point_level = _refine(T, source, target, config, prior)
+    return (_plane_refine(point_level, source, target, config, prior) if config.estimation.plane_refinement
+            else point_level)
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,

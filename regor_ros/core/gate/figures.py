@@ -55,7 +55,7 @@ class Figures:
     num_inliers: float             # source keypoints within tau_e of the target after refinement
     fitness: float                 # num_inliers / source keypoints
     surface_agreement: float       # gate/evidence.py
-    log10_false_alarms: float      # gate/evidence.py
+    log10_false_alarms: float      # gate/evidence.py: the feature matches' test against chance
     independent_agreeing: float    # gate/evidence.py
     feature_inliers: float         # initial feature matches within initial.inlier_threshold of the pose
     # the inliers fix all six degrees of freedom (always measured; a CSV from before it was a column
@@ -65,6 +65,11 @@ class Figures:
     free_space_target: float = NOT_MEASURED  # source keypoints inside the target sensor's (or map's)
     opposite_sides: float = NOT_MEASURED     # matched surface the two sensors saw from opposite sides
     rivals: RivalFigures = field(default_factory=_no_rivals)
+    # gate/surface_evidence.py: the surfaces' test against chance, measured when the features' fails
+    surface_log10_false_alarms: float = NOT_MEASURED
+    surface_cells: float = NOT_MEASURED
+    surface_cells_agreeing: float = NOT_MEASURED
+    surface_chance: float = NOT_MEASURED      # the best decoy's fraction of cells on the surfaces
     tilt_deg: float = NOT_MEASURED           # the source's up turned by the pose, from the target's up
     tilt_allowed_deg: float = NOT_MEASURED   # gravity.max_tilt
     tilt_inside: bool = True                 # the gravity prior's own predicate (True: no prior)

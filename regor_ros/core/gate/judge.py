@@ -7,7 +7,8 @@ the calibration cannot drift from the gate. Each check's test is written on nump
 The checks, in the order a reason names the first that fails:
 - measurable: enough inliers that fix all six degrees of freedom, enough fitness, and inside the
   gravity prior (a tipped-over pose is no candidate whatever else it shows);
-- beyond chance (gate/evidence.py: not fitted);
+- beyond chance (not fitted): the overlap on the target's surfaces, and either the feature matches
+  (evidence.py) or the surfaces themselves (surface_evidence.py) more than chance gives;
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
   matches (more when free space was not checked from both sides), free space, opposite sides,
   and no symmetric rival about as well supported;
@@ -41,6 +42,27 @@ def ambiguity(rivals: RivalFigures, max_violation, max_opposite):
 
 def _ambiguity(f: Figures, a):
     return ambiguity(f.rivals, a.max_free_space_violation, a.max_opposite_sides)
+
+
+def _beyond_chance(log10_false_alarms, a):
+    return log10_false_alarms <= np.log10(a.max_false_alarms)
+
+
+def _chance_reason(f: Figures, a) -> str:
+    surfaces = ("" if np.isnan(f.surface_log10_false_alarms) else
+                f", and {f.surface_cells_agreeing:.0f} of {f.surface_cells:.0f} independent cells on the target's "
+                f"surfaces (wrong poses refined there: up to {100 * f.surface_chance:.0f} %) in about "
+                f"10^{f.surface_log10_false_alarms:.1f}")
+    return (f"chance alone gives {f.independent_agreeing:.0f} independent agreeing feature matches in about "
+            f"10^{f.log10_false_alarms:.1f} of the poses this search tried{surfaces} "
+            f"(acceptance.max_false_alarms={a.max_false_alarms}): too little support for a target this size")
+
+
+def carried_by(f: Figures, a) -> str:
+    """Which test against chance a pose passes: its feature matches, else its surfaces."""
+    if _beyond_chance(f.log10_false_alarms, a):
+        return "feature matches"
+    return "surfaces" if _beyond_chance(f.surface_log10_false_alarms, a) else ""
 
 
 def _needed_features(f: Figures, a):
@@ -85,11 +107,8 @@ CHECKS = (
           lambda f, a: (f"only {100 * f.surface_agreement:.0f} % of the overlap lies on the target's surfaces "
                         f"at the keypoint spacing (acceptance.min_surface_agreement={a.min_surface_agreement}): "
                         "the clouds touch, they do not coincide")),
-    Check("max_false_alarms", lambda f, a: f.log10_false_alarms > np.log10(a.max_false_alarms),
-          lambda f, a: (f"chance alone gives {f.independent_agreeing:.0f} independent agreeing feature matches "
-                        f"in about 10^{f.log10_false_alarms:.1f} of the poses this search tried "
-                        f"(acceptance.max_false_alarms={a.max_false_alarms}): too little feature support "
-                        "for a target this size")),
+    Check("max_false_alarms", lambda f, a: (~_beyond_chance(f.log10_false_alarms, a)
+                                             & ~_beyond_chance(f.surface_log10_false_alarms, a)), _chance_reason),
     Check("min_feature_inliers", lambda f, a: f.feature_inliers < _needed_features(f, a), _features_reason),
     Check("max_free_space_violation", lambda f, a: f.worst_free_space > a.max_free_space_violation,
           lambda f, a: (f"{100 * f.worst_free_space:.0f} % of one cloud lies in space the other sensor saw "
@@ -139,6 +158,7 @@ class Verdict:
     reason: str            # why it was not accepted; empty when accepted
     failed: str = ""       # the name of the check that failed (Check.name); empty when accepted
     ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
+    carried_by: str = ""   # the test against chance that carried an accepted pose: "feature matches" or "surfaces"
 
 
 def judge(figures: Figures, acceptance) -> Verdict:
@@ -147,6 +167,6 @@ def judge(figures: Figures, acceptance) -> Verdict:
     level = float(_ambiguity(figures, acceptance))
     shown = None if np.isnan(level) else level
     if index == PASSED:
-        return Verdict(True, "", "", shown)
+        return Verdict(True, "", "", shown, carried_by(figures, acceptance))
     check = CHECKS[index]
     return Verdict(False, check.reason(figures, acceptance), check.name, shown)

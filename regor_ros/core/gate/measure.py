@@ -1,6 +1,8 @@
 """Measure every figure the gate judges a pose on (gate/figures.py), whatever the verdict, so a
 user and the calibration see all of them. The rivals cost a refinement each: they are measured
-only for a pose that passes the checks that make it measurable (judge.MEASURABLE)."""
+only for a pose that passes the checks that make it measurable (judge.MEASURABLE); the surfaces'
+test against chance (a dozen refinements) only for a pose whose feature matches fail theirs and
+that passes every other check: only then can it change the verdict."""
 from __future__ import annotations
 
 import dataclasses
@@ -18,6 +20,7 @@ from .evidence import Evidence, evidence
 from .figures import Figures
 from .judge import MEASURABLE, passes
 from .rivals import symmetric_rivals
+from .surface_evidence import SurfaceEvidence, surface_evidence
 from .visibility import VisibilityFigures, visibility_figures
 
 
@@ -28,6 +31,7 @@ class Measured:
     figures: Figures
     visibility: VisibilityFigures  # with what the figures leave out: how many points each side saw
     evidence: Evidence
+    surfaces: SurfaceEvidence | None = None  # the surfaces' test, when it was run
 
 
 def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple,
@@ -38,7 +42,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
     initial.inlier_threshold); ``uncertainty`` how well a right pose is known at this resolution
     (estimate.resolution_uncertainty: the free-space check's allowance); ``hypotheses`` how many
     poses the search compared (the evidence's trials). Under a gravity ``prior`` the pose's tilt
-    and height are measured, and a symmetric rival must keep to the prior to count."""
+    and height are measured, and a symmetric rival, or a decoy, keeps to the prior."""
     T, voxel = refined.transform, config.features.voxel_size
     match_source, match_target, agree = matches
     final_source, final_target = source.points[refined.source_index], target.points[refined.target_index]
@@ -56,7 +60,15 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         rivals = symmetric_rivals(T, figures.feature_inliers, (match_source, match_target), final_target,
                                   source, target, config, prior)
         figures = dataclasses.replace(figures, rivals=rivals)
-    return Measured(figures, visibility, support)
+    surfaces = None
+    bound = np.log10(config.acceptance.max_false_alarms)
+    if (figures.log10_false_alarms > bound
+            and passes(figures, dataclasses.replace(config.acceptance, max_false_alarms=np.inf))):
+        surfaces = surface_evidence(T, source, target, config, hypotheses, bound, prior)
+        figures = dataclasses.replace(
+            figures, surface_log10_false_alarms=surfaces.log10_false_alarms, surface_cells=surfaces.cells,
+            surface_cells_agreeing=surfaces.agreeing, surface_chance=surfaces.chance)
+    return Measured(figures, visibility, support, surfaces)
 
 
 def gravity_figures(T: np.ndarray, prior: GravityPrior, source: PreparedCloud, target: PreparedCloud) -> dict:

@@ -1,0 +1,94 @@
+"""The surfaces' test against chance (core/gate/surface_evidence.py): a right pose of a sparse scan
+lays its cells on the map far beyond what wrong poses refined there do; a slide along a corridor
+and a scan of another place do not; either test against chance carries a pose (judge)."""
+import numpy as np
+import pytest
+from conftest import DATA, require_shared_data
+
+from regor_ros.core import Figures, RegorConfig, judge, prepare_cloud, register
+from regor_ros.core.estimate import plane_refine, plane_thresholds, point_refine
+from regor_ros.core.gate.surface_evidence import surface_evidence
+from regor_ros.core.metrics import is_success
+from regor_ros.tools.map_benchmark import load_sequence
+
+OUTDOOR = RegorConfig.preset("outdoor")
+HYPOTHESES = 1250   # what the search tries outdoors (initial.seeds' hypotheses)
+
+
+@pytest.fixture(scope="module")
+def avia():
+    """The Livox Avia map prepared with its trajectory, and its queries by id."""
+    require_shared_data("the surface evidence tests")
+    cloud, trajectory, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
+    return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
+
+
+def evidence_at(T, source, target):
+    """The test at ``T`` refined as the estimator refines (point level, then planes), all decoys."""
+    est, voxel = OUTDOOR.estimation, OUTDOOR.features.voxel_size
+    T = point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations).transform
+    T = plane_refine(T, source.points, target.points, target.normals, target.tree,
+                     plane_thresholds(est.inlier_threshold, voxel))
+    return surface_evidence(T, source, target, OUTDOOR, HYPOTHESES, give_up_above=np.inf)
+
+
+def test_a_sparse_scans_right_pose_is_carried_by_its_surfaces(avia):
+    """scan_000259 thinned to every 4th point: 2-3 independent agreeing feature matches, but its
+    cells lie on the map's surfaces where no wrong pose refined there gets as many."""
+    target, queries = avia
+    query = queries["scan_000259"]
+    source = prepare_cloud(query.scan[::4], OUTDOOR, "scan", viewpoint=(0, 0, 0))
+    evidence = evidence_at(query.truth, source, target)
+    assert evidence.agreeing >= 0.95 * evidence.cells and evidence.cells > 50
+    assert evidence.decoys >= 3 and evidence.chance < 0.95
+    assert evidence.log10_false_alarms < -3
+
+
+def test_a_slide_along_a_corridor_and_another_place_are_not(avia):
+    """scan_000133 alone registers 1.6 m off along a corridor with nearly all of its cells on the
+    map's surfaces, but a decoy slides as well; a MulRan scan placed in the Avia map at its
+    registered pose fits no better than decoys there."""
+    target, queries = avia
+    slide = queries["scan_000133"]
+    source = prepare_cloud(slide.scan, OUTDOOR, "scan", viewpoint=(0, 0, 0))
+    result = register(source, target, OUTDOOR)
+    assert not is_success(result.transform, slide.truth, "outdoor") and not result.accepted
+    assert evidence_at(result.transform, source, target).log10_false_alarms > 0
+    _, _, elsewhere = load_sequence(DATA / "maps" / "scaloam_mulran_kaist03")
+    stranger = prepare_cloud(elsewhere[0].scan, OUTDOOR, "scan", viewpoint=(0, 0, 0))
+    wrong = register(stranger, target, OUTDOOR)
+    assert not wrong.accepted
+    assert evidence_at(wrong.transform, stranger, target).log10_false_alarms > 0
+
+
+def figures(features: float, surfaces: float) -> Figures:
+    """A pose every check passes but those against chance (log10 false alarms of each test)."""
+    return Figures(num_inliers=500, fitness=0.5, surface_agreement=0.99, log10_false_alarms=features,
+                   independent_agreeing=2, feature_inliers=60, free_space_source=0.0, free_space_target=0.0,
+                   surface_log10_false_alarms=surfaces, surface_cells=124, surface_cells_agreeing=123,
+                   surface_chance=0.8)
+
+
+def test_either_test_against_chance_carries_a_pose_and_the_verdict_says_which():
+    gate = OUTDOOR.acceptance
+    assert judge(figures(-4.0, float("nan")), gate).carried_by == "feature matches"
+    carried = judge(figures(2.5, -5.6), gate)
+    assert carried.accepted and carried.carried_by == "surfaces"
+    for surfaces in (float("nan"), 0.4):
+        withheld = judge(figures(2.5, surfaces), gate)
+        assert not withheld.accepted and withheld.failed == "max_false_alarms" and withheld.carried_by == ""
+    assert "123 of 124 independent cells" in judge(figures(2.5, 0.4), gate).reason
+    assert "cells" not in judge(figures(2.5, float("nan")), gate).reason   # not measured: not told
+
+
+def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdict(avia):
+    target, queries = avia
+    query = queries["scan_000259"]
+    alone = register(query.scan, target, OUTDOOR)          # carried by its feature matches
+    assert alone.accepted and alone.verdict.carried_by == "feature matches"
+    assert np.isnan(alone.figures.surface_log10_false_alarms)
+    thinned = register(query.scan[::4], target, OUTDOOR)
+    assert is_success(thinned.transform, query.truth, "outdoor")
+    assert thinned.evidence.log10_false_alarms > 0          # the features alone would withhold it
+    assert thinned.accepted and thinned.verdict.carried_by == "surfaces", thinned.reason
+    assert thinned.summary()["carried_by"] == "surfaces"
