@@ -61,7 +61,7 @@ def test_the_worker_registers_the_newest_pair_and_reports_the_pose():
     assert rotation_error_deg(T, TRUTH) < 5 and translation_error(T, TRUTH) < 0.1
     assert covariance.shape == (6, 6)
     assert outcome.status["source_frame"] == "camera" and outcome.status["registrations"] == 1
-    assert outcome.answer.startswith("pose published")
+    assert outcome.answer.startswith("pose published (carried by its feature matches")
 
 
 def test_on_demand_a_relocalize_call_waits_for_the_next_source():

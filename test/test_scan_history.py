@@ -34,7 +34,7 @@ def test_the_newest_scans_with_odometry_within_the_limits_are_fused_oldest_first
     sequence, info = history.sequence(7.0, AccumulationLimits(scans=4, max_distance=100, max_age=100, tolerance=0.01))
     assert [s[0, 0] for s in sequence.scans] == [3.0, 4.0, 6.0, 7.0]
     np.testing.assert_allclose(sequence.poses[-1], pose(14.0))
-    assert info == {"scans_fused": 4, "without_odometry": 1, "span_m": 8.0}
+    assert info == {"scans_fused": 4, "without_odometry": 1, "span_m": 8.0, "more_to_fuse": 0}
     near, _ = history.sequence(7.0, AccumulationLimits(scans=4, max_distance=5.0, max_age=100, tolerance=0.01))
     assert [s[0, 0] for s in near.scans] == [6.0, 7.0]
     recent, _ = history.sequence(7.0, AccumulationLimits(scans=4, max_distance=100, max_age=1.5, tolerance=0.01))
@@ -48,6 +48,20 @@ def test_without_odometry_for_the_newest_scan_it_is_registered_alone():
     history.add_odometry(1.0, pose(0.0))
     sequence, info = history.sequence(2.0, AccumulationLimits(scans=5, tolerance=0.1))
     assert sequence is None and info["without_odometry"] == 1 and "registered alone" in info["reason"]
+    assert info["more_to_fuse"] == 0   # without odometry no scan is fused, however many arrive
+
+
+def test_a_scan_fused_with_fewer_than_wanted_says_how_many_more_will_be():
+    history = ScanHistory(10)
+    limits = AccumulationLimits(scans=5, max_distance=100, max_age=100, tolerance=0.01)
+    history.add_scan(1.0, scan(1))
+    history.add_odometry(1.0, pose(0.0))
+    alone, info = history.sequence(1.0, limits)
+    assert alone is None and info["scans_fused"] == 1 and info["more_to_fuse"] == 4
+    history.add_scan(2.0, scan(2))
+    history.add_odometry(2.0, pose(1.0))
+    fused, info = history.sequence(2.0, limits)
+    assert len(fused.scans) == 2 and info["more_to_fuse"] == 3
 
 
 def test_the_number_of_scans_kept_follows_the_capacity_given_and_keeps_the_newest():

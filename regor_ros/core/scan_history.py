@@ -74,14 +74,16 @@ class ScanHistory:
     def sequence(self, newest: float, limits: AccumulationLimits,
                  viewpoint=ORIGIN) -> tuple[ScanSequence | None, dict]:
         """The scans to fuse, ending with the one stamped ``newest``, and what was decided (for
-        status). None when fewer than two scans can be fused: register the newest alone.
-        ``viewpoint``: the sensor in each scan's frame."""
+        status: ``more_to_fuse`` says how many more scans the next registrations fuse as they
+        arrive with odometry, up to ``limits.scans``). None when fewer than two scans can be
+        fused: register the newest alone. ``viewpoint``: the sensor in each scan's frame."""
         candidates = [(s, p) for s, p in self.scans if newest - limits.max_age <= s <= newest]
         if not candidates or candidates[-1][0] != newest:
-            return None, {"scans_fused": 1, "without_odometry": 0, "reason": "the scan is not in the history"}
+            return None, {"scans_fused": 1, "without_odometry": 0, "more_to_fuse": 0,
+                          "reason": "the scan is not in the history"}
         newest_pose = self.pose_at(newest, limits.tolerance)
         if newest_pose is None:
-            return None, {"scans_fused": 1, "without_odometry": 1,
+            return None, {"scans_fused": 1, "without_odometry": 1, "more_to_fuse": 0,
                           "reason": "no odometry near the newest scan's stamp: registered alone"}
         scans, poses, without, span = [], [], 0, 0.0
         for stamp, points in reversed(candidates):
@@ -97,7 +99,8 @@ class ScanHistory:
             scans.append(points)
             poses.append(pose)
             span = max(span, distance)
-        info = {"scans_fused": len(scans), "without_odometry": without, "span_m": round(span, 3)}
+        info = {"scans_fused": len(scans), "without_odometry": without, "span_m": round(span, 3),
+                "more_to_fuse": limits.scans - len(scans)}
         if len(scans) < 2:
             return None, info
         return ScanSequence(scans[::-1], poses[::-1], viewpoint), info

@@ -408,12 +408,16 @@ class Localizer:
         figures = (f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
                    f"{result.timings['total']:.2f} s")
         if result.accepted:
+            figures = f"carried by its {result.verdict.carried_by}, {figures}"
             self.logger.info(f"pose accepted: {figures}")
             answer = f"pose published ({figures})"
         else:
+            if accumulation and accumulation.get("more_to_fuse"):
+                figures += (f"; {accumulation['scans_fused']} of {settings.accumulation().scans} scans fused: up to "
+                            f"{accumulation['more_to_fuse']} more are fused as they arrive with odometry")
             self.logger.warning(f"pose rejected: {result.reason} ({figures})")
             answer = (f"pose published although rejected: {result.reason}" if settings.publish_rejected
-                      else f"pose withheld: {result.reason}")
+                      else f"pose withheld: {result.reason} ({figures})")
         base = np.linalg.inv(settings.base_extrinsic()) if settings.base_frame else None
         pose = None
         if result.accepted or settings.publish_rejected:
