@@ -58,15 +58,15 @@ def cells_on_surface(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
                      resolution: float, radius: float) -> tuple[int, int]:
     """(independent cells of the overlap, of them on the surface): the source keypoints ``T``
     brings within ``tolerance`` of a target keypoint, one per ``radius``, and those within
-    ``resolution`` of that keypoint's tangent plane, one per ``radius``."""
+    ``resolution`` of that keypoint's tangent plane, one per ``radius``. (Greedy picks can find
+    more places among the keypoints on the surface than among all; no more agree than there are.)"""
     placed = transform_points(T, source.points)
     distance, nearest = target.tree.query(placed, distance_upper_bound=tolerance)
     near = np.isfinite(distance)
     across = np.abs(np.einsum("ij,ij->i", placed[near] - target.points[nearest[near]],
                               target.normals[nearest[near]]))
-    on = np.zeros(len(placed), dtype=bool)
-    on[near] = across < resolution
-    return len(independent(placed[near], radius)), len(independent(placed[on], radius))
+    cells = len(independent(placed[near], radius))
+    return cells, min(len(independent(placed[near][across < resolution], radius)), cells)
 
 
 def surface_evidence(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
