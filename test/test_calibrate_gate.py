@@ -1,9 +1,10 @@
 """The gate calibration: thresholds that publish no wrong pose, chosen without the held-out place."""
 import csv
 
+import numpy as np
 import pytest
 
-from regor_ros.core import Figures, RivalFigures
+from regor_ros.core import Figures, RegorConfig, RivalFigures, ambiguity
 from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score, stable_fit
 
 NAN = float("nan")
@@ -63,7 +64,9 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
                              "independent_agreeing": 20, "constrained": "True", "error": ""})
     samples = load_samples([path], "regor")
     assert [s.violation for s in samples] == [0.02, 0.03, 0.45]
-    assert samples[1].ambiguity(0.3) == 0.5 and samples[1].ambiguity(0.005) is None
+    max_opposite = RegorConfig.preset("indoor").acceptance.max_opposite_sides
+    assert ambiguity(samples[1].figures.rivals, 0.3, max_opposite) == 0.5
+    assert np.isnan(ambiguity(samples[1].figures.rivals, 0.005, max_opposite))
     assert main([str(path), "--out", str(tmp_path / "gate.md")]) == 0
     report = (tmp_path / "gate.md").read_text()
     assert "| 3dmatch_kitchen |" in report and "| 3dmatch_hotel |" in report

@@ -24,6 +24,12 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def evenly_spaced(points: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` of ``points``, evenly spaced through their order (a cheap, deterministic
+    subsample for refinements that only need to represent the cloud)."""
+    return points[np.unique(np.linspace(0, len(points) - 1, count).astype(np.int64))]
+
+
 def attached_pose(T: np.ndarray, covariance: np.ndarray, T_frame_other: np.ndarray):
     """(pose, covariance) of a frame rigidly attached to the one ``T`` places (``T_frame_other``:
     its pose there, the robot base seen from the sensor). The covariance is over small motions in

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import Figures, RegorConfig, ambiguity, passes, stack
+from ..core import Figures, RegorConfig, passes, stack
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
@@ -102,11 +102,6 @@ class Sample:
             figures = replace(figures, free_space_source=unknown,
                               rivals=replace(rivals, violation=blind, opposite_sides=blind))
         return replace(self, figures=figures)
-
-    def ambiguity(self, max_violation: float) -> float | None:
-        level = float(ambiguity(self.figures.rivals, max_violation,
-                                RegorConfig.preset(self.kind).acceptance.max_opposite_sides))
-        return None if np.isnan(level) else level
 
 
 def load_samples(paths: list[Path], method: str) -> list[Sample]:

@@ -9,7 +9,7 @@ import numpy as np
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import agreeing, point_refine
-from ..geometry import to_matrix
+from ..geometry import evenly_spaced, to_matrix
 from ..gravity import GravityPrior
 from ..metrics import rotation_error_deg
 from .figures import RivalFigures
@@ -39,7 +39,7 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
     if len(overlap) < 3:
         return RivalFigures.of([])
     est, gate = config.estimation, config.acceptance
-    sample = source.points[np.unique(np.linspace(0, len(source) - 1, RIVAL_POINTS).astype(np.int64))]
+    sample = evenly_spaced(source.points, RIVAL_POINTS)
     own = len(point_refine(T, sample, target.tree, est.inlier_threshold, 0).source_index)
     rows = []
     turned = half_turns(overlap) @ T

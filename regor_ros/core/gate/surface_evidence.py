@@ -26,10 +26,10 @@ from scipy.spatial.transform import Rotation
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import plane_refine, plane_thresholds, point_refine
-from ..geometry import to_matrix, transform_points
+from ..geometry import evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior
 from ..metrics import rotation_error_deg, translation_error
-from .evidence import MINIMAL_SAMPLE, independent, log10_binomial_tail
+from .evidence import independent, log10_false_alarms
 
 DECOYS = 12                 # wrong poses refined per test: the null's sample
 DECOY_TURN_DEG = (10.0, 40.0)   # each decoy's turn about a random axis through the overlap's centre
@@ -76,20 +76,18 @@ def surface_evidence(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
     (the best decoy so far is enough to fail it: more can only raise the chance)."""
     est, voxel, radius = config.estimation, config.features.voxel_size, config.features.fpfh_radius
     cells, agreeing = cells_on_surface(T, source, target, est.inlier_threshold, voxel, radius)
-    chance, counted = float("nan"), 0
-    log10_false_alarms = float("nan")
+    fractions: list[float] = []
+    false_alarms = float("nan")
     for decoy in decoys(T, source, target, config, prior):
         decoy_cells, decoy_agreeing = cells_on_surface(decoy, source, target, est.inlier_threshold, voxel, radius)
         if decoy_cells < DECOY_MIN_CELLS:
             continue
-        counted += 1
-        chance = max(decoy_agreeing / decoy_cells, 0.0 if np.isnan(chance) else chance)
-        beyond = agreeing - MINIMAL_SAMPLE
-        tail = log10_binomial_tail(beyond, cells - MINIMAL_SAMPLE, chance) if beyond > 0 else 0.0
-        log10_false_alarms = float(np.log10(max(hypotheses, 1)) + tail)
-        if log10_false_alarms > give_up_above:
+        fractions.append(decoy_agreeing / decoy_cells)
+        # counted as the feature test counts: the best decoy's fraction is each cell's chance
+        false_alarms = log10_false_alarms(agreeing, cells, max(fractions), hypotheses)
+        if false_alarms > give_up_above:
             break
-    return SurfaceEvidence(cells, agreeing, chance, counted, log10_false_alarms)
+    return SurfaceEvidence(cells, agreeing, max(fractions, default=float("nan")), len(fractions), false_alarms)
 
 
 def decoys(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
@@ -100,7 +98,7 @@ def decoys(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: 
     DECOY_POINTS keypoints, inside the gravity prior's cone), and one that ends within the least
     of those of the pose came back."""
     est, tolerance = config.estimation, config.estimation.inlier_threshold
-    sample = source.points[np.unique(np.linspace(0, len(source) - 1, DECOY_POINTS).astype(np.int64))]
+    sample = evenly_spaced(source.points, DECOY_POINTS)
     clamp = prior and prior.clamp
     rng = np.random.default_rng([DECOY_STREAM, config.seed])
     centre = transform_points(T, source.points).mean(axis=0)
