@@ -13,6 +13,7 @@ from regor_ros.core.estimate import (
 )
 from regor_ros.core.geometry import attached_pose, to_matrix, transform_points
 from regor_ros.core.metrics import rotation_error_deg, translation_error
+from regor_ros.core.neighbour_grid import NeighbourGrid
 
 
 def test_kabsch_recovers_a_known_motion():
@@ -64,7 +65,7 @@ def test_point_refinement_converges_from_a_perturbed_pose(kitchen_pair):
     start[:3, :3] = np.eye(3)
     start = start @ T_gt
     assert translation_error(start, T_gt) > 0.02
-    result = point_refine(start, s.points, t.tree, threshold=0.1, iterations=20)
+    result = point_refine(start, s.points, t.neighbours, threshold=0.1, iterations=20)
     assert translation_error(result.transform, T_gt) < 0.05
     assert rotation_error_deg(result.transform, T_gt) < 3.0
     assert len(result.source_index) > 0.5 * len(s)
@@ -88,19 +89,17 @@ def _floor(offset):
 def test_plane_refinement_fixes_what_the_surfaces_fix_and_leaves_the_rest():
     """A floor fixes height, roll and pitch, never a slide along it: the slide the point level
     left stays (damping), the height is corrected."""
-    from scipy.spatial import cKDTree
     points, normals, start = _floor([0.3, -0.2, 0.05])
-    T = plane_refine(start, points, points, normals, cKDTree(points), [0.4, 0.2])
+    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2])
     np.testing.assert_allclose(T[:3, 3], [0.3, -0.2, 0.0], atol=1e-3)
     np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-6)
 
 
 def test_plane_refinement_keeps_its_rotation_inside_the_clamp():
-    from scipy.spatial import cKDTree
     points, normals, start = _floor([0.0, 0.0, 0.05])
     start[:3, :3] = Rotation.from_euler("x", 3.0, degrees=True).as_matrix()
     kept = start[:3, :3].copy()
-    T = plane_refine(start, points, points, normals, cKDTree(points), [0.4, 0.2],
+    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2],
                      clamp=lambda R: np.broadcast_to(kept, R.shape))
     np.testing.assert_allclose(T[:3, :3], kept, atol=1e-12)
     assert abs(transform_points(T, points)[:, 2].mean()) < 0.01  # the height still fitted under it

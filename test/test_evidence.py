@@ -70,7 +70,7 @@ def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncerta
     prepared, queries = avia_map
     query = queries["scan_000005"]
     fused = prepare_cloud(query.history, OUTDOOR, "scans")
-    pairs = inliers_at(query.truth, fused.points, prepared.tree, OUTDOOR.estimation.inlier_threshold)
+    pairs = inliers_at(query.truth, fused.points, prepared.neighbours, OUTDOOR.estimation.inlier_threshold)
     uncertainty = resolution_uncertainty(query.truth, fused.points[pairs.source_index], OUTDOOR.features.voxel_size)
     gate = OUTDOOR.acceptance
     pitched = query.truth @ to_matrix(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))

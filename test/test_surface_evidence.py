@@ -26,8 +26,8 @@ def avia():
 def evidence_at(T, source, target):
     """The test at ``T`` refined as the estimator refines (point level, then planes), all decoys."""
     est, voxel = OUTDOOR.estimation, OUTDOOR.features.voxel_size
-    T = point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations).transform
-    T = plane_refine(T, source.points, target.points, target.normals, target.tree,
+    T = point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations).transform
+    T = plane_refine(T, source.points, target.neighbours, target.normals,
                      plane_thresholds(est.inlier_threshold, voxel))
     return surface_evidence(T, source, target, OUTDOOR, HYPOTHESES, give_up_above=np.inf)
 

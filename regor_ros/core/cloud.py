@@ -5,12 +5,14 @@ every source), and the checks a raw cloud and a viewpoint pass before either is 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import RegistrationError
 from .geometry import transform_points
+from .neighbour_grid import NeighbourGrid
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -27,7 +29,8 @@ MAX_ABS_COORDINATE = 1e6
 @dataclass
 class PreparedCloud:
     """Keypoints (every voxel-downsampled point), their unit FPFH features, a kd-tree over the
-    points and a search index over the features."""
+    points, a search index over the features and (built when first asked) each keypoint's
+    nearest neighbours within a threshold."""
 
     points: np.ndarray    # (N, 3) float64, metres
     normals: np.ndarray   # (N, 3) unit normals (for the pose covariance)
@@ -42,6 +45,11 @@ class PreparedCloud:
 
     def __len__(self) -> int:
         return len(self.points)
+
+    @cached_property
+    def neighbours(self) -> NeighbourGrid:
+        """The refinements' nearest-keypoint search."""
+        return NeighbourGrid(self.points)
 
     @property
     def viewpoints(self) -> np.ndarray | None:

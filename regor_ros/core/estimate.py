@@ -5,11 +5,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from . import kernels
 from .geometry import to_matrix, transform_points
 from .metrics import rotation_error_deg, translation_error
+from .neighbour_grid import NeighbourGrid
 
 
 def agreeing(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float) -> np.ndarray:
@@ -86,20 +85,20 @@ class PointRefinement:
     distances: np.ndarray      # their residuals under the pose they were found with
 
 
-def point_refine(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, threshold: float,
+def point_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float,
                  iterations: int, clamp: Clamp = None) -> PointRefinement:
     """The estimator's point-level refinement: every source keypoint against its nearest target
     keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
     previous = -1
-    current = inliers_at(T, source, target_tree, threshold)
+    current = inliers_at(T, source, target, threshold)
     for _ in range(iterations):
         count = len(current.source_index)
         if count == previous or count < 3:
             break
         previous = count
-        T = weighted_kabsch(source[current.source_index], target_tree.data[current.target_index],
+        T = weighted_kabsch(source[current.source_index], target.points[current.target_index],
                             cauchy_weights(current.distances, threshold), clamp)
-        current = inliers_at(T, source, target_tree, threshold)
+        current = inliers_at(T, source, target, threshold)
     return current
 
 
@@ -129,8 +128,8 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(angle) / angle * K + (1 - np.cos(angle)) / angle ** 2 * K @ K
 
 
-def plane_refine(T: np.ndarray, source: np.ndarray, target_points: np.ndarray, target_normals: np.ndarray,
-                 target_tree: cKDTree, thresholds, clamp: Clamp = None) -> np.ndarray:
+def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, target_normals: np.ndarray,
+                 thresholds, clamp: Clamp = None) -> np.ndarray:
     """Point-to-plane refinement of a pose the point-level refinement found: Cauchy-weighted
     Gauss-Newton on each keypoint's distance to its nearest target keypoint's plane, the
     threshold annealed (``plane_thresholds``). The point-level refinement pairs keypoints up to
@@ -139,13 +138,13 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target_points: np.ndarray, t
     for threshold in thresholds:
         for _ in range(PLANE_ITERATIONS):
             moved = transform_points(T, source)
-            distances, nearest = nearest_within(target_tree, moved, threshold)
+            distances, nearest = target.nearest_within(moved, threshold)
             near = distances < threshold
             if near.sum() < 6:
                 break
             normals = target_normals[nearest[near]]
             arm = moved[near] - moved[near].mean(axis=0)  # rotate about the moved cloud's centre
-            residual = np.einsum("ij,ij->i", moved[near] - target_points[nearest[near]], normals)
+            residual = np.einsum("ij,ij->i", moved[near] - target.points[nearest[near]], normals)
             jacobian = np.hstack([np.cross(arm, normals), normals])
             weighted = jacobian * cauchy_weights(residual, threshold)[:, None]
             H = weighted.T @ jacobian
@@ -161,24 +160,9 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target_points: np.ndarray, t
     return T
 
 
-# a refinement's tree query of this many points is split over the threads: measured, a map query's
-# 14.5 k keypoints gained (estimation 0.45 -> 0.31 s), an indoor pair's 4.5 k did not (+3 %)
-PARALLEL_QUERY_POINTS = 8192
-
-
-def nearest_within(tree: cKDTree, points: np.ndarray, threshold: float):
-    """(distance, index) of each point's nearest tree point within ``threshold`` (inf, n beyond).
-    The refinements query the target tree 20 to 50 times per registration with every source
-    keypoint; a large query (a scan's 14 k against a map: 6 ms) is split over the compiled
-    kernels' threads, which are idle then. Smaller ones run on this thread: scipy starts and
-    joins threads per call. The answer does not depend on the split."""
-    workers = kernels.threads() if len(points) >= PARALLEL_QUERY_POINTS else 1
-    return tree.query(points, distance_upper_bound=threshold, workers=workers)
-
-
-def inliers_at(T: np.ndarray, source: np.ndarray, target_tree: cKDTree, threshold: float) -> PointRefinement:
+def inliers_at(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float) -> PointRefinement:
     """The keypoints ``T`` brings within ``threshold`` of a target keypoint: the final inliers."""
-    distances, nearest = nearest_within(target_tree, transform_points(T, source), threshold)
+    distances, nearest = target.nearest_within(transform_points(T, source), threshold)
     index = np.flatnonzero(distances < threshold)
     return PointRefinement(T, index, nearest[index], distances[index])
 

@@ -651,6 +651,117 @@ def flat_search(queries, table, slot, k, columns, chunks):
     return nearest, nearest_similarity, candidates, candidate_similarity, row_query, row_similarity
 
 
+GRID_AXIS_BITS = 21  # neighbour_grid: a cell coordinate per axis, three packed in an int64
+_GRID_LIMIT = (1 << GRID_AXIS_BITS) - 1
+_GRID_EMPTY = -1
+
+
+@njit(inline="always")
+def _pack_cell(i, j, k):
+    return (i << (2 * GRID_AXIS_BITS)) | (j << GRID_AXIS_BITS) | k
+
+
+@njit(inline="always")
+def _slot(key, mask):
+    return (key * np.int64(0x9E3779B97F4A7C15)) >> np.int64(17) & mask
+
+
+@njit(**JIT)
+def grid_keys(coordinates):
+    """Packed keys of non-negative integer cell coordinates (N, 3), each below 2**GRID_AXIS_BITS."""
+    keys = np.empty(len(coordinates), np.int64)
+    for p in range(len(coordinates)):
+        keys[p] = _pack_cell(coordinates[p, 0], coordinates[p, 1], coordinates[p, 2])
+    return keys
+
+
+@njit(**JIT)
+def grid_table(keys):
+    """Open-addressing table (a power of two, at least twice the cells) from a cell's packed key
+    to its position in ``keys`` (sorted, unique); _GRID_EMPTY where no cell is."""
+    size = 1
+    while size < 2 * len(keys):
+        size *= 2
+    mask = np.int64(size - 1)
+    table = np.full(size, _GRID_EMPTY, np.int64)
+    for c in range(len(keys)):
+        s = _slot(keys[c], mask)
+        while table[s] != _GRID_EMPTY:
+            s = (s + 1) & mask
+        table[s] = c
+    return table
+
+
+@njit(inline="always")
+def _cell_of(key, keys, table, mask):
+    s = _slot(key, mask)
+    while table[s] != _GRID_EMPTY:
+        if keys[table[s]] == key:
+            return table[s]
+        s = (s + 1) & mask
+    return -1
+
+
+@njit(inline="always")
+def _gap(x, a, c, cell):
+    """Distance along one axis from coordinate ``x`` (in cell units from the origin, cell ``c``)
+    to cell ``a``'s slab."""
+    if a == c:
+        return 0.0
+    if a < c:
+        return (x - (a + 1)) * cell
+    return (a - x) * cell
+
+
+@njit(parallel=True, **JIT)
+def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered):
+    """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the cells
+    ring by ring out from the query's, a cell skipped when its nearest face is farther than the
+    best found; ties go to the lower index. (distance, index), (inf, len) where none is."""
+    n, m = len(order), len(queries)
+    mask = np.int64(len(table) - 1)
+    reach = int(np.ceil(threshold / cell))
+    distance = np.full(m, np.inf)
+    index = np.full(m, n, np.int64)
+    for q in prange(m):
+        x = (queries[q, 0] - origin[0]) / cell
+        y = (queries[q, 1] - origin[1]) / cell
+        z = (queries[q, 2] - origin[2]) / cell
+        if not (-reach - 1 < x < _GRID_LIMIT + reach + 1 and -reach - 1 < y < _GRID_LIMIT + reach + 1
+                and -reach - 1 < z < _GRID_LIMIT + reach + 1):
+            continue
+        cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
+        best, found = threshold * threshold, n
+        for ring in range(reach + 1):
+            for a in range(cx - ring, cx + ring + 1):
+                if a < 0 or a > _GRID_LIMIT:
+                    continue
+                ga = _gap(x, a, cx, cell)
+                for b in range(cy - ring, cy + ring + 1):
+                    if b < 0 or b > _GRID_LIMIT:
+                        continue
+                    gb = _gap(y, b, cy, cell)
+                    for c in range(cz - ring, cz + ring + 1):
+                        if c < 0 or c > _GRID_LIMIT or max(abs(a - cx), abs(b - cy), abs(c - cz)) != ring:
+                            continue
+                        gc = _gap(z, c, cz, cell)
+                        if ga * ga + gb * gb + gc * gc > best:
+                            continue
+                        k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
+                        if k < 0:
+                            continue
+                        for p in range(starts[k], starts[k + 1]):
+                            dx = ordered[p, 0] - queries[q, 0]
+                            dy = ordered[p, 1] - queries[q, 1]
+                            dz = ordered[p, 2] - queries[q, 2]
+                            d = dx * dx + dy * dy + dz * dz
+                            if d < best or (d == best and order[p] < found):
+                                best, found = d, order[p]
+        if found < n and best < threshold * threshold:
+            distance[q], index[q] = np.sqrt(best), found
+    return distance, index
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel for the types the pipeline passes,
     under the BLAS limit a registration runs them under (cell_top_k's products would otherwise
@@ -671,6 +782,9 @@ def warm_up() -> None:
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
         splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
         within_any(points, points[:2], np.ones(2))
+        keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
+        grid_nearest(points, np.zeros(3), 0.1, 0.1, keys, grid_table(keys), np.array([0, 2], np.int64),
+                     np.arange(2, dtype=np.int64), points[:2].copy())
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)

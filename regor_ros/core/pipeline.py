@@ -404,7 +404,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
             prior: GravityPrior | None):
     est = config.estimation
-    return point_refine(T, source.points, target.tree, est.inlier_threshold, est.max_iterations,
+    return point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations,
                         prior and prior.clamp)
 
 
@@ -417,9 +417,9 @@ def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config:
     that fits worse is not taken."""
     est, voxel = config.estimation, config.features.voxel_size
     T = refined.transform
-    fine = plane_refine(T, source.points, target.points, target.normals, target.tree,
+    fine = plane_refine(T, source.points, target.neighbours, target.normals,
                         plane_thresholds(est.inlier_threshold, voxel), prior and prior.clamp)
-    candidate = inliers_at(fine, source.points, target.tree, est.inlier_threshold)
+    candidate = inliers_at(fine, source.points, target.neighbours, est.inlier_threshold)
     # keypoints within a voxel of the target, from the residuals found within tau_e
     return candidate if (candidate.distances < voxel).sum() >= (refined.distances < voxel).sum() else refined
 

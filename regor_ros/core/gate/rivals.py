@@ -40,13 +40,13 @@ def symmetric_rivals(T: np.ndarray, num_feature_inliers: int, matches: tuple, ov
         return RivalFigures.of([])
     est, gate = config.estimation, config.acceptance
     sample = evenly_spaced(source.points, RIVAL_POINTS)
-    own = len(point_refine(T, sample, target.tree, est.inlier_threshold, 0).source_index)
+    own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
     rows = []
     turned = half_turns(overlap) @ T
     if prior is not None:
         turned = turned[prior.allows(turned, source, target)]
     for start in turned:
-        refined = point_refine(start, sample, target.tree, est.inlier_threshold, RIVAL_ITERATIONS,
+        refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, RIVAL_ITERATIONS,
                                prior and prior.clamp)
         visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
         rows.append((len(refined.source_index) / max(own, 1),

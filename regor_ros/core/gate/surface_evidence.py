@@ -61,7 +61,7 @@ def cells_on_surface(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
     ``resolution`` of that keypoint's tangent plane, one per ``radius``. (Greedy picks can find
     more places among the keypoints on the surface than among all; no more agree than there are.)"""
     placed = transform_points(T, source.points)
-    distance, nearest = target.tree.query(placed, distance_upper_bound=tolerance)
+    distance, nearest = target.neighbours.nearest_within(placed, tolerance)
     near = np.isfinite(distance)
     across = np.abs(np.einsum("ij,ij->i", placed[near] - target.points[nearest[near]],
                               target.normals[nearest[near]]))
@@ -108,9 +108,9 @@ def decoys(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: 
         direction = rng.normal(size=3)
         shift = direction / np.linalg.norm(direction) * rng.uniform(*DECOY_SHIFT_TAU) * tolerance
         start = to_matrix(turn, centre - turn @ centre + shift) @ T
-        decoy = point_refine(start, sample, target.tree, tolerance, est.max_iterations, clamp).transform
+        decoy = point_refine(start, sample, target.neighbours, tolerance, est.max_iterations, clamp).transform
         if est.plane_refinement:
-            decoy = plane_refine(decoy, sample, target.points, target.normals, target.tree,
+            decoy = plane_refine(decoy, sample, target.neighbours, target.normals,
                                  plane_thresholds(tolerance, config.features.voxel_size), clamp)
         came_back = (rotation_error_deg(decoy, T) <= DECOY_TURN_DEG[0]
                      and translation_error(decoy, T) <= DECOY_SHIFT_TAU[0] * tolerance)

@@ -1,0 +1,45 @@
+"""The refinements' nearest-keypoint search answers as a kd-tree does, whatever the cloud."""
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from regor_ros.core.neighbour_grid import NeighbourGrid
+
+
+def _as_kd_tree(points, queries, threshold):
+    grid_distance, grid_index = NeighbourGrid(points).nearest_within(queries, threshold)
+    tree_distance, tree_index = cKDTree(points).query(queries, distance_upper_bound=threshold)
+    found = np.isfinite(tree_distance)
+    np.testing.assert_array_equal(np.isfinite(grid_distance), found)
+    np.testing.assert_array_equal(grid_distance[found], tree_distance[found])
+    np.testing.assert_array_equal(grid_index[found], tree_index[found])
+    assert (grid_index[~found] == len(points)).all()
+    return found
+
+
+@pytest.mark.parametrize("threshold", [0.05, 0.1, 0.37, 1.2])
+def test_nearest_within_a_threshold_is_the_kd_trees(threshold):
+    rng = np.random.default_rng(3)
+    points = rng.random((4000, 3)) * [6.0, 4.0, 2.0] - 1.0
+    queries = rng.random((3000, 3)) * [8.0, 6.0, 4.0] - 2.0   # some far outside the cloud
+    found = _as_kd_tree(points, queries, threshold)
+    assert 0 < found.sum() < len(queries)
+
+
+def test_a_cloud_too_wide_for_cells_of_the_threshold_still_answers():
+    """Cells are enlarged when the cloud spans more of them than a key packs (a map in UTM-sized
+    coordinates); the query then looks in more rings."""
+    rng = np.random.default_rng(4)
+    points = np.vstack([rng.random((500, 3)), rng.random((500, 3)) + [2.0e5, 0.0, 0.0]])
+    queries = np.vstack([rng.random((300, 3)), rng.random((300, 3)) + [2.0e5, 0.0, 0.0]])
+    assert _as_kd_tree(points, queries, 0.05).sum() > 100
+
+
+def test_a_threshold_asked_again_reuses_its_grid_and_an_empty_cloud_finds_nothing():
+    grid = NeighbourGrid(np.random.default_rng(5).random((50, 3)))
+    grid.nearest_within(np.zeros((2, 3)), 0.2)
+    built = grid._grids[0.2]
+    grid.nearest_within(np.ones((2, 3)), 0.2)
+    assert grid._grids[0.2] is built
+    distance, index = NeighbourGrid(np.zeros((0, 3))).nearest_within(np.zeros((2, 3)), 0.2)
+    assert np.isinf(distance).all() and (index == 0).all()
