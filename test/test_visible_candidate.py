@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from conftest import DATA, require_shared_data
 
-from regor_ros.core import RegorConfig, is_success, register
+from regor_ros.core import RegorConfig, is_success, prepare_cloud, register
 from regor_ros.core.visible_candidate import visible_candidate
+from regor_ros.tools.map_benchmark import THINNING, load_sequence
 
 KITCHEN = "7-scenes-redkitchen"
 
@@ -34,6 +35,25 @@ def test_a_wrong_winner_that_fails_free_space_gives_way_to_the_right_place_found
     assert picked.visibility.worst <= config.acceptance.max_free_space_violation
     # the gate still judges it: this low-overlap pose has too little feature support against chance
     assert not picked.accepted and "chance" in picked.reason
+
+
+def test_outdoors_a_sparse_scans_place_is_found_among_the_next_places_and_published():
+    # MulRan scan 3 with every 4th point (a 16-beam sensor's density) against the OS1-64 map: the
+    # search's winner puts the scan into the map's seen free space; the outdoor preset refines the
+    # next places and publishes the one that passes (with it off, nothing right is found)
+    require_shared_data("the MulRan map")
+    cloud, trajectory, queries = load_sequence(DATA / "maps" / "scaloam_mulran_kaist03")
+    query = next(q for q in queries if q.id == "scan_000003")
+    outdoor = RegorConfig.preset("outdoor")
+    assert outdoor.estimation.visible_candidates > 0
+    target = prepare_cloud(cloud, outdoor, "map", trajectory=trajectory)
+    sparse = query.scan[::THINNING]
+    first = register(sparse, target, outdoor.replace({"estimation.visible_candidates": 0}))
+    assert not is_success(first.transform, query.truth, "outdoor")
+    assert first.visibility.worst > outdoor.acceptance.max_free_space_violation
+    picked = register(sparse, target, outdoor)
+    assert picked.selected == "candidate" and is_success(picked.transform, query.truth, "outdoor")
+    assert picked.accepted, picked.reason
 
 
 class Refined:
