@@ -76,13 +76,16 @@ def test_a_revisit_seen_from_the_other_way_is_found_once_normals_face_the_sensor
     """Revisit query 200 looks 139 deg away from the map's nearest pose. With the solver's signs
     (decided in each cloud's own axes) the fused scans' FPFH find almost none of their true
     matches in the map and the search settles elsewhere; with every normal facing the sensor that
-    saw it, the place is found and published."""
+    saw it, the place is found and published. (With the solver's signs the outdoor preset's
+    verification picks also reach it, from the search's next places: off here, to compare the
+    features alone.)"""
     require_shared_data("the revisit sequence")
     cloud, trajectory, queries = load_sequence(DATA / "revisit" / "avia_hku2_loop")
     query = next(q for q in queries if q.id == "scan_000200")
     outcome = {}
     for toward in (True, False):
-        cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": toward})
+        cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": toward,
+                                                     "estimation.visible_candidates": 0})
         prepared = prepare_cloud(cloud, cfg, "map", trajectory=trajectory)
         assert prepared.normals_toward_sensors == toward
         result = register(query.history, prepared, cfg)
