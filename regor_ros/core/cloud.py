@@ -12,7 +12,6 @@ import numpy as np
 
 from .errors import RegistrationError
 from .geometry import transform_points
-from .neighbour_grid import NeighbourGrid
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -20,6 +19,7 @@ if TYPE_CHECKING:
     from .config import FeatureConfig
     from .feature_index import FeatureIndex
     from .map_view import MapView
+    from .neighbour_grid import NeighbourGrid
     from .range_image import RangeImage
 
 # Coordinates beyond this are treated as garbage (float32 overflow, uninitialised buffers).
@@ -48,7 +48,9 @@ class PreparedCloud:
 
     @cached_property
     def neighbours(self) -> NeighbourGrid:
-        """The refinements' nearest-keypoint search."""
+        """The refinements' nearest-keypoint search (imported here: it loads the compiled kernels,
+        which a cloud's checks do not need)."""
+        from .neighbour_grid import NeighbourGrid
         return NeighbourGrid(self.points)
 
     @property
