@@ -28,7 +28,7 @@ def test_nearest_within_a_threshold_is_the_kd_trees(threshold):
 
 def test_a_cloud_too_wide_for_cells_of_the_threshold_still_answers():
     """Cells are enlarged when the cloud spans more of them than a key packs (a map in UTM-sized
-    coordinates); the query then looks in more rings."""
+    coordinates); each then holds more points."""
     rng = np.random.default_rng(4)
     points = np.vstack([rng.random((500, 3)), rng.random((500, 3)) + [2.0e5, 0.0, 0.0]])
     queries = np.vstack([rng.random((300, 3)), rng.random((300, 3)) + [2.0e5, 0.0, 0.0]])

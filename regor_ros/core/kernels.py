@@ -663,7 +663,7 @@ def _pack_cell(i, j, k):
 
 @njit(inline="always")
 def _slot(key, mask):
-    return (key * np.int64(0x9E3779B97F4A7C15)) >> np.int64(17) & mask
+    return ((key * np.int64(0x9E3779B97F4A7C15)) >> np.int64(17)) & mask
 
 
 @njit(**JIT)
@@ -715,24 +715,23 @@ def _gap(x, a, c, cell):
 
 @njit(parallel=True, **JIT)
 def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered):
-    """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the cells
-    ring by ring out from the query's, a cell skipped when its nearest face is farther than the
-    best found; ties go to the lower index. (distance, index), (inf, len) where none is."""
+    """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the
+    query's cell, then the 26 around it (cells are never smaller than the threshold, so these hold
+    every point within it), a cell skipped when its nearest face is farther than the best found;
+    ties go to the lower index. (distance, index), (inf, len) where none is."""
     n, m = len(order), len(queries)
     mask = np.int64(len(table) - 1)
-    reach = int(np.ceil(threshold / cell))
     distance = np.full(m, np.inf)
     index = np.full(m, n, np.int64)
     for q in prange(m):
         x = (queries[q, 0] - origin[0]) / cell
         y = (queries[q, 1] - origin[1]) / cell
         z = (queries[q, 2] - origin[2]) / cell
-        if not (-reach - 1 < x < _GRID_LIMIT + reach + 1 and -reach - 1 < y < _GRID_LIMIT + reach + 1
-                and -reach - 1 < z < _GRID_LIMIT + reach + 1):
+        if not (-2 < x < _GRID_LIMIT + 2 and -2 < y < _GRID_LIMIT + 2 and -2 < z < _GRID_LIMIT + 2):
             continue
         cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
         best, found = threshold * threshold, n
-        for ring in range(reach + 1):
+        for ring in range(2):   # the query's own cell first: its best prunes the others
             for a in range(cx - ring, cx + ring + 1):
                 if a < 0 or a > _GRID_LIMIT:
                     continue

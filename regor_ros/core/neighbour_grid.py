@@ -2,8 +2,8 @@
 
 The refinements ask it 20 to 50 times per registration, every source keypoint each time, always
 within a small threshold (tau_e and its halves). A kd-tree answers any radius; a hashed grid of
-cells the threshold's size answers this one by looking in the query's cell and the rings around
-it, nearest cells first, skipping a cell that cannot hold anything nearer than what was found.
+cells the threshold's size answers this one by looking in the query's cell and the 26 around it,
+its own first, skipping a cell that cannot hold anything nearer than what was found.
 Measured on a 3DMatch pair (4.3 k keypoints each): 1.1 ms against the kd-tree's 3.0 ms at
 0.1 m; on a MulRan map (74 k keypoints, a 14.5 k scan): 6-15 ms against 11-17 ms at 1.2-0.3 m;
 the same nearest keypoints. A grid is built the first time a threshold is asked for and kept, so
@@ -16,8 +16,6 @@ import threading
 import numpy as np
 
 from . import kernels
-
-AXIS_BITS = kernels.GRID_AXIS_BITS  # a cell's coordinate along each axis is packed in this many bits
 
 
 class NeighbourGrid:
@@ -45,11 +43,11 @@ class NeighbourGrid:
 
     def _build(self, threshold: float) -> tuple:
         """Cells of the threshold's size (larger when the cloud spans more cells than the packed
-        key holds: then the query looks further out, in more rings), the points sorted by cell,
-        and an open-addressing table from a cell's key to its run of points."""
+        key holds: each then holds more points), the points sorted by cell, and an
+        open-addressing table from a cell's key to its run of points."""
         origin = self.points.min(axis=0)
         extent = float((self.points.max(axis=0) - origin).max())
-        cell = max(threshold, extent / (2 ** AXIS_BITS - 2), 1e-9)
+        cell = max(threshold, extent / (2 ** kernels.GRID_AXIS_BITS - 2), 1e-9)
         coordinates = np.floor((self.points - origin) / cell).astype(np.int64)
         packed = kernels.grid_keys(coordinates)
         order = np.argsort(packed, kind="stable")
