@@ -58,6 +58,18 @@ def load_map_query(sequence, query):
             np.loadtxt(folder / "queries" / query / "gt.txt"))
 
 
+def load_threedmatch(scene, source, target):
+    """(source fragment, target fragment, T_target_source) of a pair of the shared 3DMatch lists
+    (``scene`` a folder name's distinctive part, e.g. "studyroom"); fragments in their camera frames."""
+    require_shared_data(f"3DMatch {scene} {source}-{target}")
+    folder = DATA / "threedmatch"
+    for entry in json.loads((folder / "pairs.json").read_text()):
+        if scene in entry["scene"] and (entry["j"], entry["i"]) == (source, target):
+            return (np.load(folder / entry["scene"] / f"{source}.npy"), np.load(folder / entry["scene"] / f"{target}.npy"),
+                    np.asarray(entry["T"], dtype=np.float64))
+    raise KeyError(f"no 3DMatch pair {scene} {source}-{target} in {folder / 'pairs.json'}")
+
+
 def length_residual(source, target):
     """||a_i - a_j| - |b_i - b_j|| for every pair of (..., n, 3) correspondences by numpy
     broadcasting: the definition the compiled kernels are held to."""

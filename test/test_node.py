@@ -1,7 +1,7 @@
 """The installed register_node, built with colcon and started as a process, over real DDS."""
 import numpy as np
 import pytest
-from conftest import load_map_query, moved_pair
+from conftest import load_map_query, load_threedmatch, moved_pair
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rcl_interfaces.srv import DescribeParameters, GetParameters
 from ros_helpers import TIMEOUT, NodeProcess, call, set_param
@@ -138,6 +138,21 @@ def test_retries_run_in_the_node_and_a_rejected_pose_is_not_published(pairs_node
     finally:
         assert set_param(ros, "acceptance.min_inliers", 40).successful
         assert set_param(ros, "acceptance.retries", 0).successful
+
+
+def test_a_pose_slid_along_a_bookshelf_is_not_published_and_the_status_says_why(pairs_node, ros):
+    # 3DMatch studyroom 45 -> 40 with the normals facing the sensors: slid 0.85 m along the shelves
+    src, tgt, _ = load_threedmatch("studyroom", 45, 40)
+    assert set_param(ros, "features.normals_toward_sensors", True).successful
+    try:
+        poses_before = len(ros.poses)
+        pose, status = ros.register_pair(src, tgt, TIMEOUT)
+        assert status is not None and not status["accepted"], status
+        assert pose is None and status["failed_check"] == "min_weakest_support", status
+        assert status["reason"].startswith("ambiguous") and "slid" in status["reason"], status
+        assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
+    finally:
+        assert set_param(ros, "features.normals_toward_sensors", False).successful
 
 
 def test_map_mode_prepares_the_target_once(install, ros, pairs_node):

@@ -191,6 +191,12 @@ class AcceptanceConfig:
                                       "land on bins the map fills (under a right pose the map holds the scan's "
                                       "surfaces)",
                                       0.0, 1.0)
+    min_weakest_support: float = param(1.0, "fewest independent neighbourhoods of surface (one per "
+                                       "features.fpfh_radius) that must face the direction the overlap's surfaces "
+                                       "pin least: under one, the position along it rests on slivers of surface "
+                                       "that one repeated structure (a bookshelf's bays, a row of doors) imitates, "
+                                       "and the pose slid along it fits as well (a unit, not fitted; 0 = off)",
+                                       0.0, 1e6)
     max_ambiguity: float = param(0.8, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
                                   "overlap (refined, passing the visibility checks) keeps this fraction of both its "
                                   "point "

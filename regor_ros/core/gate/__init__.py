@@ -11,6 +11,8 @@ A wrong pose published with confidence is the worst outcome, so a pose is accept
   was seen from the same side (visibility.py);
 - the pose turned by 180 degrees about an axis of symmetry of the overlap does not explain the
   clouds about as well (rivals.py: when both poses fit, neither can be trusted);
+- at least one independent neighbourhood of surface faces every direction: where none does, the
+  pose slides along a repeated structure (a bookshelf's bays) and fits as well (slide.py);
 - it keeps to the gravity prior, lies inside the search region a hint gave, and
   (acceptance.reverse_check) registering the target to the source gives it back.
 

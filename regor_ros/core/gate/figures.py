@@ -64,6 +64,7 @@ class Figures:
     free_space_source: float = NOT_MEASURED  # target keypoints inside the source sensor's seen free space
     free_space_target: float = NOT_MEASURED  # source keypoints inside the target sensor's (or map's)
     opposite_sides: float = NOT_MEASURED     # matched surface the two sensors saw from opposite sides
+    weakest_support: float = NOT_MEASURED    # gate/slide.py: neighbourhoods facing the least pinned direction
     rivals: RivalFigures = field(default_factory=_no_rivals)
     # gate/surface_evidence.py: the surfaces' test against chance, measured when the features' fails
     surface_log10_false_alarms: float = NOT_MEASURED

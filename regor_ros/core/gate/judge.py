@@ -12,6 +12,8 @@ The checks, in the order a reason names the first that fails:
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
   matches (more when free space was not checked from both sides), free space, opposite sides,
   and no symmetric rival about as well supported;
+- pinned (a unit, not fitted): at least one independent neighbourhood of surface faces every
+  direction, or the pose can slide along repeated structure (slide.py);
 - inside the hint's search region, and given back by the reverse registration (when run).
 """
 from __future__ import annotations
@@ -122,6 +124,11 @@ CHECKS = (
           lambda f, a: (f"the pose turned by 180 deg fits with {100 * _ambiguity(f, a):.0f} % of its support "
                         f"(acceptance.max_ambiguity={a.max_ambiguity}): a symmetric scene, neither pose can "
                         "be trusted")),
+    Check("min_weakest_support", lambda f, a: f.weakest_support < a.min_weakest_support,
+          lambda f, a: (f"ambiguous: only {f.weakest_support:.2f} independent neighbourhoods of surface face the "
+                        f"direction the overlap pins least (acceptance.min_weakest_support={a.min_weakest_support}): "
+                        "slid along it past a repeated structure (a bookshelf's bays, a row of doors) the pose "
+                        "fits as well")),
     Check("search_region", lambda f, a: f.region_offset > f.region_radius,
           lambda f, a: (f"the pose puts the source {f.region_offset:.1f} m from the hinted position, outside "
                         f"its {f.region_radius:.1f} m search region")),

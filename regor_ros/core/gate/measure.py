@@ -20,6 +20,7 @@ from .evidence import Evidence, evidence
 from .figures import Figures
 from .judge import MEASURABLE, passes
 from .rivals import symmetric_rivals
+from .slide import weakest_support
 from .surface_evidence import SurfaceEvidence, surface_evidence
 from .visibility import VisibilityFigures, visibility_figures
 
@@ -50,11 +51,14 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
                        target.tree, match_source, agree, voxel, config.initial.inlier_threshold,
                        config.features.fpfh_radius, hypotheses)
     visibility = visibility_figures(T, source, target, config.acceptance, refined.target_index, uncertainty)
+    slide_support = weakest_support(T, final_source, final_target, target.normals[refined.target_index], voxel,
+                                    config.features.fpfh_radius)[0]
     figures = Figures(
         num_inliers=len(final_source), fitness=len(final_source) / len(source),
         constrained=bool(np.linalg.eigvalsh(covariance).max() < UNCONSTRAINED_VARIANCE),
         surface_agreement=support.surface_agreement, log10_false_alarms=support.log10_false_alarms,
         independent_agreeing=support.independent_agreeing, feature_inliers=int(agree.sum()),
+        weakest_support=slide_support,
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     if passes(figures, config.acceptance, MEASURABLE):
         rivals = symmetric_rivals(T, figures.feature_inliers, (match_source, match_target), final_target,
