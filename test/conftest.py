@@ -65,7 +65,8 @@ def load_threedmatch(scene, source, target):
     folder = DATA / "threedmatch"
     for entry in json.loads((folder / "pairs.json").read_text()):
         if scene in entry["scene"] and (entry["j"], entry["i"]) == (source, target):
-            return (np.load(folder / entry["scene"] / f"{source}.npy"), np.load(folder / entry["scene"] / f"{target}.npy"),
+            fragments = folder / entry["scene"]
+            return (np.load(fragments / f"{source}.npy"), np.load(fragments / f"{target}.npy"),
                     np.asarray(entry["T"], dtype=np.float64))
     raise KeyError(f"no 3DMatch pair {scene} {source}-{target} in {folder / 'pairs.json'}")
 

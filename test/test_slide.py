@@ -57,7 +57,8 @@ def test_nothing_on_the_surfaces_is_no_support():
 def register_fragments(scene, source, target):
     src, tgt, T_gt = load_threedmatch(scene, source, target)
     config = RegorConfig.preset("indoor").replace({"features.normals_toward_sensors": True})
-    result = register(prepare_cloud(src, config, viewpoint=ORIGIN), prepare_cloud(tgt, config, viewpoint=ORIGIN), config)
+    source, target = (prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt))
+    result = register(source, target, config)
     return result, T_gt
 
 
