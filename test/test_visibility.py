@@ -156,8 +156,9 @@ def test_rooms_of_two_places_put_back_to_back_are_rejected_by_the_opposite_sides
     hotel, sensor = scenes_pair_source("3dmatch_hotel_uc_2_34", 2)
     study = np.load(SCENES / "3dmatch_studyroom_27_32" / "tgt.npy")
     cfg = INDOOR.replace({"seed": 2})
-    blind = register(hotel, study, cfg.replace({"max_opposite_sides": 1.0, "min_feature_inliers": 0}),
-                     source_viewpoint=sensor)
+    # the slide check (gate/slide.py) also withholds this pose: off, to see the others pass
+    blind = register(hotel, study, cfg.replace({"max_opposite_sides": 1.0, "min_feature_inliers": 0,
+                                                "min_weakest_support": 0.0}), source_viewpoint=sensor)
     assert blind.accepted, blind.reason   # every other check passes
     assert blind.visibility.worst < 0.01
     checked = register(hotel, study, cfg.replace({"min_feature_inliers": 0}), source_viewpoint=sensor)
