@@ -25,7 +25,7 @@ def plane(normal, offset, extent=2.0, step=0.05):
 def support(*planes):
     points = np.vstack([p for p, _ in planes])
     normals = np.vstack([n for _, n in planes])
-    return weakest_support(np.eye(4), points, points, normals, 0.05, RADIUS)
+    return weakest_support(np.eye(4), (points, points, normals), 0.05, RADIUS)
 
 
 def test_surfaces_facing_every_way_but_one_leave_that_way_unpinned():
@@ -50,7 +50,7 @@ def test_support_counts_neighbourhoods_not_points():
 
 def test_nothing_on_the_surfaces_is_no_support():
     points, normals = plane([0, 0, 1], 0.0)
-    value, _ = weakest_support(np.eye(4), points + [0, 0, 0.5], points, normals, 0.05, RADIUS)
+    value, _ = weakest_support(np.eye(4), (points + [0, 0, 0.5], points, normals), 0.05, RADIUS)
     assert value == 0.0
 
 

@@ -53,16 +53,21 @@ class Evidence:
         return dict(vars(self))
 
 
+def on_surface(placed: np.ndarray, paired_target: np.ndarray, paired_normals: np.ndarray,
+               resolution: float) -> np.ndarray:
+    """Mask of the ``placed`` source keypoints within ``resolution`` of their paired target
+    keypoint's tangent plane (a sparse scan samples a surface along its lines: the nearest keypoint
+    may be a voxel away along the surface, the surface is not)."""
+    return np.abs(np.einsum("ij,ij->i", placed - paired_target, paired_normals)) < resolution
+
+
 def surface_agreement(T: np.ndarray, overlap_source: np.ndarray, overlap_target: np.ndarray,
                       overlap_normals: np.ndarray, resolution: float) -> float:
     """Fraction of the overlap (each source keypoint ``T`` brings within tau_e of a target keypoint,
-    paired with that keypoint and its normal) within ``resolution`` of the target's surface,
-    measured to the keypoint's tangent plane (a sparse scan samples a surface along its lines: the
-    nearest keypoint may be a voxel away along the surface, the surface is not)."""
+    paired with that keypoint and its normal) on the target's surface at ``resolution``."""
     if not len(overlap_source):
         return 0.0
-    across = np.abs(np.einsum("ij,ij->i", transform_points(T, overlap_source) - overlap_target, overlap_normals))
-    return float((across < resolution).sum() / len(overlap_source))
+    return float(on_surface(transform_points(T, overlap_source), overlap_target, overlap_normals, resolution).mean())
 
 
 def independent(points: np.ndarray, radius: float) -> np.ndarray:

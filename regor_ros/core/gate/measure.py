@@ -47,12 +47,12 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
     T, voxel = refined.transform, config.features.voxel_size
     match_source, match_target, agree = matches
     final_source, final_target = source.points[refined.source_index], target.points[refined.target_index]
-    support = evidence(T, (final_source, final_target, target.normals[refined.target_index]), target.points,
+    overlap = (final_source, final_target, target.normals[refined.target_index])
+    support = evidence(T, overlap, target.points,
                        target.tree, match_source, agree, voxel, config.initial.inlier_threshold,
                        config.features.fpfh_radius, hypotheses)
     visibility = visibility_figures(T, source, target, config.acceptance, refined.target_index, uncertainty)
-    slide_support = weakest_support(T, final_source, final_target, target.normals[refined.target_index], voxel,
-                                    config.features.fpfh_radius)[0]
+    slide_support = weakest_support(T, overlap, voxel, config.features.fpfh_radius)[0]
     figures = Figures(
         num_inliers=len(final_source), fitness=len(final_source) / len(source),
         constrained=bool(np.linalg.eigvalsh(covariance).max() < UNCONSTRAINED_VARIANCE),

@@ -17,18 +17,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry import transform_points
-from .evidence import independent
+from .evidence import independent, on_surface
 
 
-def weakest_support(T: np.ndarray, overlap_source: np.ndarray, overlap_target: np.ndarray,
-                    overlap_normals: np.ndarray, resolution: float, radius: float) -> tuple[float, np.ndarray]:
+def weakest_support(T: np.ndarray, overlap: tuple, resolution: float, radius: float) -> tuple[float, np.ndarray]:
     """(neighbourhoods' worth of surface facing the least pinned direction, that direction in the
-    target frame) for the pose ``T``: ``overlap_*`` its source keypoints paired within tau_e with
-    target keypoints and their normals; only pairs within ``resolution`` of the target's surface
-    count (the pose's overlap on the surfaces), grouped one neighbourhood per ``radius``.
-    (0, no direction) when nothing lies on the surfaces."""
+    target frame) for the pose ``T``: ``overlap`` its (source keypoints, target keypoints, their
+    normals) paired within tau_e; only pairs on the target's surface at ``resolution`` count,
+    grouped one neighbourhood per ``radius``. (0, no direction) when none is."""
+    overlap_source, overlap_target, overlap_normals = overlap
     placed = transform_points(T, overlap_source)
-    on = np.abs(np.einsum("ij,ij->i", placed - overlap_target, overlap_normals)) < resolution
+    on = on_surface(placed, overlap_target, overlap_normals, resolution)
     if not on.any():
         return 0.0, np.zeros(3)
     points, normals = placed[on], overlap_normals[on]

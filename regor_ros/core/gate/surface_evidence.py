@@ -29,7 +29,7 @@ from ..estimate import plane_refine, plane_thresholds, point_refine
 from ..geometry import evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior
 from ..metrics import rotation_error_deg, translation_error
-from .evidence import independent, log10_false_alarms
+from .evidence import independent, log10_false_alarms, on_surface
 
 DECOYS = 12                 # wrong poses refined per test: the null's sample
 DECOY_TURN_DEG = (10.0, 40.0)   # each decoy's turn about a random axis through the overlap's centre
@@ -63,10 +63,9 @@ def cells_on_surface(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
     placed = transform_points(T, source.points)
     distance, nearest = target.neighbours.nearest_within(placed, tolerance)
     near = np.isfinite(distance)
-    across = np.abs(np.einsum("ij,ij->i", placed[near] - target.points[nearest[near]],
-                              target.normals[nearest[near]]))
+    on = on_surface(placed[near], target.points[nearest[near]], target.normals[nearest[near]], resolution)
     cells = len(independent(placed[near], radius))
-    return cells, min(len(independent(placed[near][across < resolution], radius)), cells)
+    return cells, min(len(independent(placed[near][on], radius)), cells)
 
 
 def surface_evidence(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
