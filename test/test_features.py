@@ -32,12 +32,15 @@ def test_prepared_cloud_has_unit_features_and_normals(kitchen_pair):
     assert cloud.input_size == len(kitchen_pair[0])
 
 
-def test_features_are_open3d_fpfh_up_to_bin_edges():
-    """The tensor FPFH (all cores) must stay the FPFH the pipeline was measured with: the legacy
-    histograms, where at most a few neighbours at a bin edge fall in the next bin."""
+@pytest.mark.parametrize("pair, preset", [("lidar_koide_251371071_to_251370668", "outdoor"),
+                                          ("3dmatch_redkitchen_5_6_ds", "indoor")])
+def test_features_are_open3d_fpfh_up_to_bin_edges(pair, preset):
+    """The compiled FPFH must stay the FPFH the pipeline was measured with: Open3D's histograms,
+    where at most a few neighbours at a bin edge fall in the next bin, or tie at the max_nn-th
+    distance and are kept in another's place."""
     import open3d as o3d
-    src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
-    cfg = RegorConfig.preset("outdoor").replace({"remove_ground": False})
+    src, _, _, _ = moved_pair(pair, 1)
+    cfg = RegorConfig.preset(preset).replace({"remove_ground": False})
     cloud = prepare_cloud(src, cfg)
     down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.points))
     down.normals = o3d.utility.Vector3dVector(cloud.normals)
@@ -112,3 +115,25 @@ def test_both_clouds_compare_under_one_normal_convention(kitchen_pair):
     # preparing one registration's clouds apart: facing the sensors only if every viewpoint is known
     assert for_clouds_seen_from(cfg, (0, 0, 0), (1, 0, 0)).features.normals_toward_sensors
     assert not for_clouds_seen_from(cfg, (0, 0, 0), None).features.normals_toward_sensors
+
+
+def test_fpfh_is_the_same_on_one_thread_and_zero_for_a_point_alone():
+    """Each point's histogram is summed in its own fixed order, so the thread count changes no
+    bit; a point with no neighbour within the radius has no histogram (Open3D's zeros)."""
+    import numba
+
+    from regor_ros.core.features import fpfh
+    src, _, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 1)
+    cloud = prepare_cloud(src, RegorConfig.preset("indoor"))
+    cfg = RegorConfig.preset("indoor").features
+    points = np.vstack([cloud.points, cloud.points.max(axis=0) + 10.0])   # one point far from the rest
+    normals = np.vstack([cloud.normals, [0.0, 0.0, 1.0]])
+    both = fpfh(points, normals, cfg.fpfh_radius, cfg.fpfh_max_nn)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        one = fpfh(points, normals, cfg.fpfh_radius, cfg.fpfh_max_nn)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one, both)
+    assert not both[-1].any() and both[:-1].any(axis=1).mean() > 0.99

@@ -1,12 +1,14 @@
-"""Compiled inner loops of the consensus steps, the free-space check and the feature search
-(numba), where numpy did the arithmetic in a wider form than the method needs, or FAISS read
-memory in an order that made it wait or searched the same products more than once.
+"""Compiled inner loops of the consensus steps, the free-space check, the feature search and
+FPFH (numba), where numpy did the arithmetic in a wider form than the method needs, FAISS read
+memory in an order that made it wait or searched the same products more than once, or Open3D
+searched a kd-tree per point holding the GIL.
 
 Each consensus kernel gives exactly what the numpy expression it replaced gave (the tests hold
 them to those expressions): the same float32 rounding of the length residual, integer counts, ties
 broken by index. The feature search gives the similarities of a numpy matrix product; FAISS,
 which it replaced, sums in another order (the last bit may differ). Nothing depends on the
-number of threads.
+number of threads. FPFH gives Open3D's histograms (the tests hold it to them) but for the order
+of a sum's terms and which of the neighbours tied at the max_nn-th distance are kept.
 Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
 node pays that when it starts, not on its first relocalization. The threads they run on are
 this module's too: OpenMP first, and numpy's BLAS kept off the cores while a registration runs
@@ -761,6 +763,160 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
     return distance, index
 
 
+@njit(inline="always")
+def _nearest_within(p, x, y, z, block, block_index, m, radius2, out, candidate, candidate_d2):
+    """The up to len(``out``) points of the first ``m`` of ``block`` (x, y, z rows; their indices
+    ``block_index``) nearest (x, y, z) within the radius (squared ``radius2``), point ``p`` itself
+    left out, into ``out`` (ties at the cut-off to the lower index); their number."""
+    for i in range(m):   # one pass the compiler vectorises, then the ones within
+        dx, dy, dz = block[0, i] - x, block[1, i] - y, block[2, i] - z
+        candidate_d2[i] = dx * dx + dy * dy + dz * dz
+    n = 0
+    for i in range(m):
+        if candidate_d2[i] <= radius2 and block_index[i] != p:
+            candidate[n], candidate_d2[n] = block_index[i], candidate_d2[i]
+            n += 1
+    most = len(out)
+    if n <= most:
+        out[:n] = candidate[:n]
+        return n
+    cut = np.partition(candidate_d2[:n].copy(), most - 1)[most - 1]
+    kept = 0
+    for i in range(n):
+        if candidate_d2[i] < cut:
+            out[kept] = candidate[i]
+            kept += 1
+    tied = np.sort(candidate[:n][candidate_d2[:n] == cut])
+    out[kept:] = tied[:most - kept]
+    return most
+
+
+@njit(inline="always")
+def _pair_bins(points, normals, p, q):
+    """The three FPFH bins (0-10 each) of the pair of points ``p`` and ``q``, in Rusu's Darboux
+    frame taken at the point whose normal is closer to the line between them; a pair with no
+    frame (coincident points, a normal along the line) counts as all angles zero, the middle
+    bins, as Open3D counts it."""
+    dx, dy, dz = points[q, 0] - points[p, 0], points[q, 1] - points[p, 1], points[q, 2] - points[p, 2]
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if length == 0.0:
+        return 5, 5, 5
+    cos1 = (normals[p, 0] * dx + normals[p, 1] * dy + normals[p, 2] * dz) / length
+    cos2 = (normals[q, 0] * dx + normals[q, 1] * dy + normals[q, 2] * dz) / length
+    ux, uy, uz = normals[p, 0], normals[p, 1], normals[p, 2]
+    wx, wy, wz = normals[q, 0], normals[q, 1], normals[q, 2]
+    phi = cos1
+    if abs(cos1) < abs(cos2):   # the frame at the other point (arccos is decreasing)
+        ux, uy, uz, wx, wy, wz = wx, wy, wz, ux, uy, uz
+        phi = -cos2
+        dx, dy, dz = -dx, -dy, -dz
+    vx, vy, vz = dy * uz - dz * uy, dz * ux - dx * uz, dx * uy - dy * ux
+    v_norm = np.sqrt(vx * vx + vy * vy + vz * vz)
+    if v_norm == 0.0:
+        return 5, 5, 5
+    vx, vy, vz = vx / v_norm, vy / v_norm, vz / v_norm
+    sx, sy, sz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    alpha = vx * wx + vy * wy + vz * wz
+    return (_angle_bin(sx * wx + sy * wy + sz * wz, ux * wx + uy * wy + uz * wz),
+            min(max(int(np.floor(11 * (alpha + 1.0) * 0.5)), 0), 10),
+            min(max(int(np.floor(11 * (phi + 1.0) * 0.5)), 0), 10))
+
+
+# cos of the bin edges of an angle in [-pi, pi] cut into 11: edges 1-5 below 0, 6-10 above
+_EDGE_COS = np.cos(-np.pi + 2.0 * np.pi * np.arange(1, 11) / 11)
+
+
+@njit(inline="always")
+def _angle_bin(y, x):
+    """floor(11 (atan2(y, x) + pi) / 2 pi), clamped to 0-10, without the arctangent (half the
+    pair's cost): within a half-plane the angle is monotonic in its cosine, so the bin is the
+    number of edges that cosine has passed."""
+    r = np.sqrt(x * x + y * y)
+    c = x / r if r > 0.0 else 1.0
+    count = 0
+    if y >= 0.0:
+        count = 5
+        for k in range(5, 10):
+            if c <= _EDGE_COS[k]:
+                count += 1
+    else:
+        for k in range(5):
+            if c >= _EDGE_COS[k]:
+                count += 1
+    return count
+
+
+@njit(parallel=True, **JIT)
+def fpfh_features(points, normals, radius, max_nn, origin, cell, keys, table, starts, order, ordered,
+                  most_candidates):
+    """(N, 33) FPFH (features.fpfh) of every point, its neighbours the ``max_nn`` - 1 nearest
+    within ``radius`` on a grid of cells no smaller than it (neighbour_grid): first each point's
+    own histogram of pair angles (SPFH, each third summing to 100), then each point's SPFH plus
+    its neighbours', weighted by one over the squared distance and each third normalised to
+    100. ``most_candidates`` bounds the points of 27 cells. Points are independent: the same
+    sums in the same order whatever the threads."""
+    n = len(points)
+    radius2 = radius * radius
+    neighbours = np.empty((n, max(max_nn - 1, 0)), np.int64)  # a neighbourhood of max_nn counts the point
+    counts = np.zeros(n, np.int64)
+    mask = np.int64(len(table) - 1)
+    low = np.int64((1 << GRID_AXIS_BITS) - 1)
+    for cell_at in prange(len(keys)):   # the points of a cell share the 27 cells around it
+        block = np.empty((3, most_candidates))
+        block_index = np.empty(most_candidates, np.int64)
+        candidate = np.empty(most_candidates, np.int64)
+        candidate_d2 = np.empty(most_candidates)
+        key = keys[cell_at]
+        cx, cy, cz = key >> (2 * GRID_AXIS_BITS), (key >> GRID_AXIS_BITS) & low, key & low
+        m = 0
+        for a in range(max(cx - 1, 0), min(cx + 1, _GRID_LIMIT) + 1):
+            for b in range(max(cy - 1, 0), min(cy + 1, _GRID_LIMIT) + 1):
+                for c in range(max(cz - 1, 0), min(cz + 1, _GRID_LIMIT) + 1):
+                    k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
+                    if k < 0:
+                        continue
+                    for q in range(starts[k], starts[k + 1]):
+                        block[0, m], block[1, m], block[2, m] = ordered[q, 0], ordered[q, 1], ordered[q, 2]
+                        block_index[m] = order[q]
+                        m += 1
+        for at in range(starts[cell_at], starts[cell_at + 1]):
+            p = order[at]
+            counts[p] = _nearest_within(p, ordered[at, 0], ordered[at, 1], ordered[at, 2], block, block_index,
+                                        m, radius2, neighbours[p], candidate, candidate_d2)
+    spfh = np.zeros((n, 33))
+    for p in prange(n):
+        if counts[p] == 0:
+            continue
+        step = 100.0 / counts[p]
+        for i in range(counts[p]):
+            q = neighbours[p, i]
+            a, b, g = _pair_bins(points, normals, p, q)
+            spfh[p, a] += step
+            spfh[p, 11 + b] += step
+            spfh[p, 22 + g] += step
+    fpfh = np.zeros((n, 33))
+    for p in prange(n):
+        if counts[p] == 0:
+            continue
+        for i in range(counts[p]):
+            q = neighbours[p, i]
+            dx, dy, dz = points[q, 0] - points[p, 0], points[q, 1] - points[p, 1], points[q, 2] - points[p, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 == 0.0:
+                continue
+            weight = 1.0 / d2
+            for j in range(33):
+                fpfh[p, j] += spfh[q, j] * weight
+        for third in range(3):
+            total = 0.0
+            for j in range(11 * third, 11 * third + 11):
+                total += fpfh[p, j]
+            scale = 100.0 / total if total != 0.0 else 0.0
+            for j in range(11 * third, 11 * third + 11):
+                fpfh[p, j] = fpfh[p, j] * scale + spfh[p, j]
+    return fpfh
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) every kernel for the types the pipeline passes,
     under the BLAS limit a registration runs them under (cell_top_k's products would otherwise
@@ -787,3 +943,6 @@ def warm_up() -> None:
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)
+        normals = np.tile([0.0, 0.0, 1.0], (2, 1))
+        fpfh_features(points[:2].copy(), normals, 0.1, 3, np.zeros(3), 0.1, keys, grid_table(keys),
+                      np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(), 54)

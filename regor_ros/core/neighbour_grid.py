@@ -32,10 +32,12 @@ class NeighbourGrid:
         queries = np.ascontiguousarray(queries, dtype=np.float64)
         if len(self.points) == 0:
             return np.full(len(queries), np.inf), np.zeros(len(queries), dtype=np.int64)
-        origin, cell, keys, table, starts, order, ordered = self._grid(float(threshold))
+        origin, cell, keys, table, starts, order, ordered = self.cells(float(threshold))
         return kernels.grid_nearest(queries, origin, cell, float(threshold), keys, table, starts, order, ordered)
 
-    def _grid(self, threshold: float) -> tuple:
+    def cells(self, threshold: float) -> tuple:
+        """The grid for ``threshold`` (origin, cell, keys, table, starts, order, ordered points:
+        the kernels' arguments), built the first time it is asked for."""
         with self._lock:
             if threshold not in self._grids:
                 self._grids[threshold] = self._build(threshold)
