@@ -857,7 +857,7 @@ def fpfh_features(points, normals, radius, max_nn, origin, cell, keys, table, st
     sums in the same order whatever the threads."""
     n = len(points)
     radius2 = radius * radius
-    neighbours = np.empty((n, max(max_nn - 1, 0)), np.int64)  # a neighbourhood of max_nn counts the point
+    neighbours = np.empty((n, max(max_nn - 1, 0)), np.int32)  # a neighbourhood of max_nn counts the point
     counts = np.zeros(n, np.int64)
     mask = np.int64(len(table) - 1)
     low = np.int64((1 << GRID_AXIS_BITS) - 1)
