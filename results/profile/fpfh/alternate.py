@@ -17,33 +17,21 @@ import open3d as o3d
 
 sys.path.insert(0, ".")
 from regor_ros.core import RegorConfig, prepare_cloud, register, rotation_error_deg, translation_error  # noqa: E402
-from regor_ros.core.metrics import is_success  # noqa: E402
 from regor_ros.core import features as features_module  # noqa: E402
+from regor_ros.core.metrics import is_success  # noqa: E402
 from regor_ros.tools.map_benchmark import load_sequence  # noqa: E402
 from regor_ros.tools.threedmatch_benchmark import Fragments, load_list  # noqa: E402
 
 COMPILED = features_module.fpfh
 
 
-def open3d_fpfh(points, normals, radius, max_nn, chunk=features_module.FPFH_CHUNK):
-    """The descriptors as they were: Open3D's tensor FPFH, a map in slabs along x."""
-    def histograms(rows):
-        cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points[rows]))
-        cloud.point.normals = o3d.core.Tensor(normals[rows])
-        return o3d.t.pipelines.registration.compute_fpfh_feature(
-            cloud, max_nn=max_nn, radius=radius).numpy().astype(np.float32)
-
-    if len(points) <= chunk:
-        return histograms(slice(None))
-    order = np.argsort(points[:, 0], kind="stable")
-    x = points[order, 0]
-    out = np.empty((len(points), 33), dtype=np.float32)
-    for start in range(0, len(points), chunk):
-        stop = min(start + chunk, len(points))
-        first = np.searchsorted(x, x[start] - 2 * radius, side="left")
-        last = np.searchsorted(x, x[stop - 1] + 2 * radius, side="right")
-        out[order[start:stop]] = histograms(order[first:last])[start - first:stop - first]
-    return out
+def open3d_fpfh(points, normals, radius, max_nn):
+    """The descriptors as they were: Open3D's tensor FPFH, in one call (the shared maps have fewer
+    keypoints than a slab held, 100 k)."""
+    cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points))
+    cloud.point.normals = o3d.core.Tensor(normals)
+    return o3d.t.pipelines.registration.compute_fpfh_feature(
+        cloud, max_nn=max_nn, radius=radius).numpy().astype(np.float32)
 
 
 VERSIONS = {"compiled": COMPILED, "open3d": open3d_fpfh}
