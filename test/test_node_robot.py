@@ -113,11 +113,14 @@ def _listening(ros) -> bool:
     return found
 
 
+RELOCALIZE_TIMEOUT = 10.0  # how long a relocalize call waits for a scan: 4 s was missed with two suites running
+
+
 def _start(install, map_file: Path, trajectory: Path):
     return NodeProcess(install, "--params-file",
                        str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),
                        "-p", "mode:=map", "-p", f"map_file:={map_file}", "-p", f"map_trajectory_file:={trajectory}",
-                       "-p", "registration:=on_demand", "-p", "relocalize_timeout:=4.0",
+                       "-p", "registration:=on_demand", "-p", f"relocalize_timeout:={RELOCALIZE_TIMEOUT}",
                        "-p", "base_frame:=base_link", "-p", f"base_to_sensor:='{BASE_TO_SENSOR}'",
                        "-r", "__node:=register_node")
 
