@@ -399,6 +399,7 @@ class Localizer:
             if result.accepted and region is not None and self._hint is hint:
                 self._hint = None  # the robot is found: the hint has done its job
             status = {"source_stamp": src.stamp, "source_frame": src.header.frame_id,
+                      "target_stamp": None if job.target is None else job.target.stamp,
                       "target_frame": target_frame, "pose_of": settings.base_frame or src.header.frame_id,
                       "mode": settings.mode, **self.stats, **self.health.inputs, "accumulation": accumulation,
                       "source_up": source_up, "target_up": config.gravity.target_up,

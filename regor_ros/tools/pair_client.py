@@ -21,7 +21,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Header, String
 from visualization_msgs.msg import MarkerArray
 
-from ..ros.messages import matrix_from_pose
+from ..ros.messages import matrix_from_pose, stamp_seconds
 from ..ros.pointcloud import xyz_to_cloud
 
 DISCOVERY_SETTLE_S = 1.0
@@ -80,20 +80,30 @@ class PairClient(Node):
 
     def register_pair(self, src: np.ndarray, tgt: np.ndarray, timeout: float,
                       source_frame: str = "scan", target_frame: str = "map"):
-        """Publish both clouds (again every RETRY_S while unanswered) until a status arrives;
-        returns (pose or None, status)."""
-        seen, poses_seen = len(self.statuses), len(self.poses)
+        """Publish both clouds (again every RETRY_S while unanswered) until the status of this
+        pair arrives; returns (pose or None, status). The node pairs the newest source with the
+        newest target, so an answer is recognised by both stamps, never by its arrival: one for
+        an earlier pair, or for an earlier source with this target, may still be on its way."""
+        source = xyz_to_cloud(src, self.header(source_frame))
+        target = xyz_to_cloud(tgt, self.header(target_frame))
+        stamps = (stamp_seconds(source.header), stamp_seconds(target.header))
+        status = None
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            self.publish(xyz_to_cloud(src, self.header(source_frame)),
-                         xyz_to_cloud(tgt, self.header(target_frame)))
-            if self.spin_until(lambda: len(self.statuses) > seen, min(RETRY_S, deadline - time.monotonic())):
-                status = self.statuses[seen]
-                if not status["accepted"]:
-                    return None, status
-                self.spin_until(lambda: len(self.poses) > poses_seen, 5.0)
-                return (self.poses[poses_seen] if len(self.poses) > poses_seen else None), status
-        return None, None
+        while status is None and time.monotonic() < deadline:
+            self.publish(source, target)
+            self.spin_until(lambda: self._status_of(stamps) is not None,
+                            min(RETRY_S, deadline - time.monotonic()))
+            status = self._status_of(stamps)
+        if status is None or not status["accepted"]:
+            return None, status
+        self.spin_until(lambda: self._pose_of(source.header) is not None, 5.0)
+        return self._pose_of(source.header), status
+
+    def _status_of(self, stamps: tuple[float, float]) -> dict | None:
+        return next((s for s in self.statuses if (s["source_stamp"], s["target_stamp"]) == stamps), None)
+
+    def _pose_of(self, header: Header) -> PoseStamped | None:
+        return next((p for p in self.poses if p.header.stamp == header.stamp), None)
 
 
 def verdict_line(status: dict) -> str:
