@@ -59,10 +59,9 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     the points within two radii around it, which bounds the memory (about 1 kB a point)."""
     def histograms(rows) -> np.ndarray:
         grid = NeighbourGrid(points[rows])
-        cells = grid.cells(radius)
-        most_candidates = 27 * int(np.diff(cells[4]).max(initial=0))
+        _origin, _cell, *cells = grid.cells(radius)   # cells no smaller than the radius: their keys suffice
         return kernels.fpfh_features(grid.points, np.ascontiguousarray(normals[rows], dtype=np.float64),
-                                     float(radius), int(max_nn), *cells, most_candidates).astype(np.float32)
+                                     float(radius), int(max_nn), *cells).astype(np.float32)
 
     if len(points) <= chunk:
         return histograms(slice(None))

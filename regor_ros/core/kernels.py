@@ -817,9 +817,13 @@ def _pair_bins(points, normals, p, q):
     vx, vy, vz = vx / v_norm, vy / v_norm, vz / v_norm
     sx, sy, sz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
     alpha = vx * wx + vy * wy + vz * wz
-    return (_angle_bin(sx * wx + sy * wy + sz * wz, ux * wx + uy * wy + uz * wz),
-            min(max(int(np.floor(11 * (alpha + 1.0) * 0.5)), 0), 10),
-            min(max(int(np.floor(11 * (phi + 1.0) * 0.5)), 0), 10))
+    return _angle_bin(sx * wx + sy * wy + sz * wz, ux * wx + uy * wy + uz * wz), _cosine_bin(alpha), _cosine_bin(phi)
+
+
+@njit(inline="always")
+def _cosine_bin(c):
+    """floor(11 (c + 1) / 2), clamped to 0-10: a cosine's bin."""
+    return min(max(int(np.floor(11 * (c + 1.0) * 0.5)), 0), 10)
 
 
 # cos of the bin edges of an angle in [-pi, pi] cut into 11: edges 1-5 below 0, 6-10 above
@@ -847,16 +851,18 @@ def _angle_bin(y, x):
 
 
 @njit(parallel=True, **JIT)
-def fpfh_features(points, normals, radius, max_nn, origin, cell, keys, table, starts, order, ordered,
-                  most_candidates):
+def fpfh_features(points, normals, radius, max_nn, keys, table, starts, order, ordered):
     """(N, 33) FPFH (features.fpfh) of every point, its neighbours the ``max_nn`` - 1 nearest
-    within ``radius`` on a grid of cells no smaller than it (neighbour_grid): first each point's
-    own histogram of pair angles (SPFH, each third summing to 100), then each point's SPFH plus
-    its neighbours', weighted by one over the squared distance and each third normalised to
-    100. ``most_candidates`` bounds the points of 27 cells. Points are independent: the same
-    sums in the same order whatever the threads."""
+    within ``radius``, found on neighbour_grid's grid of cells no smaller than the radius (its
+    keys, table, starts, order and ordered points): first each point's own histogram of pair
+    angles (SPFH, each third summing to 100), then each point's SPFH plus its neighbours',
+    weighted by one over the squared distance and each third normalised to 100. Points are
+    independent: the same sums in the same order whatever the threads."""
     n = len(points)
     radius2 = radius * radius
+    most_candidates = 0   # the points 27 cells can hold
+    for k in range(len(keys)):
+        most_candidates = max(most_candidates, 27 * (starts[k + 1] - starts[k]))
     neighbours = np.empty((n, max(max_nn - 1, 0)), np.int32)  # a neighbourhood of max_nn counts the point
     counts = np.zeros(n, np.int64)
     mask = np.int64(len(table) - 1)
@@ -944,5 +950,5 @@ def warm_up() -> None:
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)
         normals = np.tile([0.0, 0.0, 1.0], (2, 1))
-        fpfh_features(points[:2].copy(), normals, 0.1, 3, np.zeros(3), 0.1, keys, grid_table(keys),
-                      np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(), 54)
+        fpfh_features(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
+                      np.arange(2, dtype=np.int64), points[:2].copy())
