@@ -10,7 +10,7 @@ from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 
 from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
-from regor_ros.ros.messages import matrix_from_pose
+from regor_ros.ros.messages import matrix_from_pose, stamp_seconds
 from regor_ros.ros.pointcloud import xyz_to_cloud
 from regor_ros.tools.pair_client import pose_to_matrix
 
@@ -153,6 +153,21 @@ def test_a_pose_slid_along_a_bookshelf_is_not_published_and_the_status_says_why(
         assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
     finally:
         assert set_param(ros, "features.normals_toward_sensors", False).successful
+
+
+def test_a_room_turned_by_a_quarter_is_not_published_and_the_candidates_hold_both_poses(pairs_node, ros):
+    # 3DMatch studyroom 45 -> 0: the search's pose turns the box room by 89 deg, and the pose
+    # turned back by a quarter, the truth, fits nearly as well (test_rivals.py)
+    src, tgt, T_gt = load_threedmatch("studyroom", 45, 0)
+    poses_before = len(ros.poses)
+    pose, status = ros.register_pair(src, tgt, TIMEOUT)
+    assert status is not None and pose is None, status
+    assert status["failed_check"] == "max_ambiguity" and status["reason"].startswith("ambiguous: two poses fit")
+    assert ros.spin_until(lambda: any(stamp_seconds(c.header) == status["source_stamp"] for c in ros.candidates), 5.0)
+    candidates = next(c for c in ros.candidates if stamp_seconds(c.header) == status["source_stamp"])
+    turns = [rotation_error_deg(matrix_from_pose(p), T_gt) for p in candidates.poses]
+    assert turns[0] > 80 and turns[1] < 5, turns   # the withheld pose, then its twin: the truth
+    assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
 
 
 def test_map_mode_prepares_the_target_once(install, ros, pairs_node):

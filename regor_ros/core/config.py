@@ -197,12 +197,13 @@ class AcceptanceConfig:
                                        "that one repeated structure (a bookshelf's bays, a row of doors) imitates, "
                                        "and the pose slid along it fits as well (a unit, not fitted; 0 = off)",
                                        0.0, 1e6)
-    max_ambiguity: float = param(0.8, "reject a pose when the pose turned by 180 deg about a symmetry axis of the "
-                                  "overlap (refined, passing the visibility checks) keeps this fraction of both its "
-                                  "point "
-                                  "and its feature support: a symmetric room; 10 = off (calibrated: "
-                                  "regor-calibrate-gate)",
-                                  0.0, 10.0)
+    max_ambiguity: float = param(0.05, "withhold a pose as ambiguous when the evidence cannot tell it from a rival "
+                                  "turned about the scene's symmetry (a half turn about the overlap's axes, a "
+                                  "quarter turn about its surfaces' dominant direction; refined) that would pass "
+                                  "the visibility checks and the inlier, fitness and feature-match minimums on its "
+                                  "own: when a tie between the two would give the pose its lead in independent "
+                                  "agreeing feature matches with more than this probability (a significance level, "
+                                  "not fitted; 1 = off)", 0.0, 1.0)
     reverse_check: bool = param(False, "also register target to source and accept only if that returns the inverse "
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
                                  "registration per accepted pose; deviation)")

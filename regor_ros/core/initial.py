@@ -249,8 +249,11 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
     return out
 
 
-def led_by(T: np.ndarray, candidates: list, inlier_threshold: float) -> list:
-    """The candidates with the final pose ``T`` first, carrying the best support of the ones at
-    its place, then the others (best supported first): the published pose and its rivals."""
-    support = max((s for pose, s in candidates if same_place(pose, T, inlier_threshold)), default=0)
-    return [(T, support)] + [(pose, s) for pose, s in candidates if not same_place(pose, T, inlier_threshold)]
+def led_by(leaders: list, candidates: list, inlier_threshold: float) -> list:
+    """The ``leaders`` (the final pose, then the twins the gate could not tell from it) first,
+    each carrying the best support of the candidates at its place, then the other candidates
+    (best supported first): the published pose and its rivals."""
+    def support_at(T):
+        return max((s for pose, s in candidates if same_place(pose, T, inlier_threshold)), default=0)
+    return [(T, support_at(T)) for T in leaders] + [
+        (pose, s) for pose, s in candidates if not any(same_place(pose, T, inlier_threshold) for T in leaders)]

@@ -57,9 +57,10 @@ class Correspondences:
 
 @dataclass
 class Candidate:
-    """A distinct pose the search found, with its FS-TCD support (feature-verified matches that
-    agree in length); the result's first is its own pose, and its margin over the next says how
-    unique the place is."""
+    """A distinct pose, with the FS-TCD support (feature-verified matches that agree in length)
+    the search found at its place (0: none there). The result's first is its own pose, then the
+    symmetric twins the gate could not tell from it, then the other places the search found; the
+    first's margin over the next says how unique the place is."""
 
     transform: np.ndarray   # 4x4 T_target_source
     support: int
@@ -101,7 +102,7 @@ class RegistrationResult:
 
     @property
     def ambiguity(self) -> float | None:
-        """Support ratio of the best symmetric rival that passes the visibility checks."""
+        """The largest chance that a tie gives this pose its lead over a symmetric rival (gate/rivals.py)."""
         return self.verdict.ambiguity
 
     @property
@@ -397,8 +398,14 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=measured.visibility,
         evidence=measured.evidence,
-        candidates=[Candidate(pose, support)
-                    for pose, support in led_by(T, initial.candidates, config.initial.inlier_threshold)])
+        candidates=_candidates(T, initial.candidates, measured.undecided_rivals(config.acceptance),
+                               config.initial.inlier_threshold))
+
+
+def _candidates(T: np.ndarray, searched: list, twins: np.ndarray, tau: float) -> list[Candidate]:
+    """The pose, then the symmetric twins the evidence cannot tell from it, then the other places
+    the search found; each with the search's support at its place."""
+    return [Candidate(pose, support) for pose, support in led_by([T, *twins], searched, tau)]
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,

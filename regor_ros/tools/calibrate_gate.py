@@ -2,25 +2,25 @@
 
 Reads the per-registration CSVs that ``regor-bench`` writes (pairs with ground truth, and the
 ``--mismatched`` cross-place runs, where every pose is wrong), with the gate's figures recorded
-whatever the verdict. Four thresholds are fitted for each kind (preset), since each kind is a
-different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``,
-``acceptance.max_ambiguity`` and ``acceptance.min_feature_inliers`` on the runs whose free space
-was checked from both sides, then ``acceptance.min_feature_inliers_partial`` for a pose whose
-free space was not (a viewpoint unknown, as for a map): on the runs that had no full check, and
-on every run again with its viewpoints dropped, the target's or both (the run's figures without
-those sides; its rivals keep their recorded figures, which only makes the fit stricter). Each run
-is judged by the gate's own judge (core/gate/judge.py) on the figures its CSV row recorded, so the
-calibration cannot drift from the gate. The checks not fitted keep the preset's values: the
-structural ones (min_inliers, min_fitness, six constrained degrees of freedom, the gravity prior),
-those against chance (``acceptance.min_surface_agreement``, a majority rule, and
-``acceptance.max_false_alarms``, the a-contrario bound of 1) and the opposite-sides check
-(``acceptance.max_opposite_sides``, a majority rule).
+whatever the verdict. Three thresholds are fitted for each kind (preset), since each kind is a
+different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation`` and
+``acceptance.min_feature_inliers`` on the runs whose free space was checked from both sides, then
+``acceptance.min_feature_inliers_partial`` for a pose whose free space was not (a viewpoint
+unknown, as for a map): on the runs that had no full check, and on every run again with its
+viewpoints dropped, the target's or both (the run's figures without those sides; its rivals keep
+their recorded figures, which only makes the fit stricter). Each run is judged by the gate's own
+judge (core/gate/judge.py) on the figures its CSV row recorded, so the calibration cannot drift
+from the gate. The checks not fitted keep the preset's values: the structural ones (min_inliers,
+min_fitness, six constrained degrees of freedom, the gravity prior), those against chance
+(``acceptance.min_surface_agreement``, a majority rule, and ``acceptance.max_false_alarms``, the
+a-contrario bound of 1), the opposite-sides check (``acceptance.max_opposite_sides``, a majority
+rule) and the symmetric rivals' test (``acceptance.max_ambiguity``, a significance level).
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
-choices the strictest (the lowest free-space and ambiguity thresholds, the highest feature
-counts): every tied choice publishes the same correct poses where it was fitted, and a wrong pose
-published costs more than a correct one withheld, so the room left is left to the wrong side
-that the fit did not see. Then each threshold is taken at its strictest among that fit and the
+choices the strictest (the lowest free-space threshold, the highest feature counts): every tied
+choice publishes the same correct poses where it was fitted, and a wrong pose published costs
+more than a correct one withheld, so the room left is left to the wrong side that the fit did
+not see. Then each threshold is taken at its strictest among that fit and the
 fits with each training place left out in turn (``stable_fit``): a relaxation whose gain rests on
 one place's runs is not taken, since the next place may put wrong poses in the room it opens (a
 threshold whose fitted value flips between folds is a weak check, and the strict side is the safe
@@ -51,7 +51,6 @@ from .bench_results import place, same_place
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
 FEATURE_GRID = np.arange(0, 151, 5)
 FEATURE_AXIS = FEATURE_GRID[:, None]  # every feature threshold at once, on an axis before the runs'
-AMBIGUITY_GRID = [0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95, 1.0, 10.0]  # 10: off
 
 
 @dataclass
@@ -124,10 +123,10 @@ def load_samples(paths: list[Path], method: str) -> list[Sample]:
     return samples
 
 
-Thresholds = tuple[float, int, float, int]  # violation, min features, ambiguity, min features (partial)
-THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "max_ambiguity", "min_feature_inliers_partial")
+Thresholds = tuple[float, int, int]  # violation, min features, min features (partial)
+THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "min_feature_inliers_partial")
 # the fitted thresholds where they stop nothing: what the checks that are not fitted publish alone
-LENIENT = dict(zip(THRESHOLD_NAMES, (1.0, 0, 10.0, 0), strict=True))
+LENIENT = dict(zip(THRESHOLD_NAMES, (1.0, 0, 0), strict=True))
 
 
 class Runs:
@@ -168,8 +167,7 @@ def score(samples: list[Sample], thresholds: Thresholds):
 
 def preset_thresholds(kind: str) -> Thresholds:
     gate = RegorConfig.preset(kind).acceptance
-    return (gate.max_free_space_violation, gate.min_feature_inliers, gate.max_ambiguity,
-            gate.min_feature_inliers_partial)
+    return gate.max_free_space_violation, gate.min_feature_inliers, gate.min_feature_inliers_partial
 
 
 def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:
@@ -183,18 +181,18 @@ def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:
 
 
 def fit(samples: list[Sample], kind: str) -> Thresholds:
-    """The thresholds for samples of one kind, by the module's rule: the three of a full check on
+    """The thresholds for samples of one kind, by the module's rule: the two of a full check on
     the runs checked from both sides, then the partial feature threshold on the others and on
     every run with its viewpoints dropped."""
     full, partial = checked_runs(samples)
-    violation, min_features, max_ambiguity = _fit_full(full, kind)
+    violation, min_features = _fit_full(full, kind)
     if all(s.correct for s in partial):
-        return violation, min_features, max_ambiguity, max(min_features, preset_thresholds(kind)[3])
-    right, wrong = Runs(partial).counts((violation, min_features, max_ambiguity, FEATURE_AXIS))
+        return violation, min_features, max(min_features, preset_thresholds(kind)[2])
+    right, wrong = Runs(partial).counts((violation, min_features, FEATURE_AXIS))
     safe = (FEATURE_GRID >= min_features) & (wrong == 0)
     if not safe.any():
-        return violation, min_features, max_ambiguity, int(FEATURE_GRID[-1])
-    return violation, min_features, max_ambiguity, strictest_features(safe, right)
+        return violation, min_features, int(FEATURE_GRID[-1])
+    return violation, min_features, strictest_features(safe, right)
 
 
 def strictest_features(safe: np.ndarray, right: np.ndarray) -> int:
@@ -213,15 +211,15 @@ def stable_fit(samples: list[Sample], kind: str, fitter=fit) -> Thresholds:
     nothing to fit on without it, and no vote."""
     rests = [[s for s in samples if not s.involves(family)] for family in families(samples)]
     fits = [fitter(samples, kind)] + [fitter(rest, kind) for rest in rests if not all(s.correct for s in rest)]
-    violation, min_features, max_ambiguity, min_partial = zip(*fits, strict=True)
-    return min(violation), max(min_features), min(max_ambiguity), max(min_partial)
+    violation, min_features, min_partial = zip(*fits, strict=True)
+    return min(violation), max(min_features), max(min_partial)
 
 
 def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
     """The feature thresholds fitted so that each alone stops every wrong pose the unfitted checks
-    let through (no help from free space or ambiguity, which keep the preset's values): a fit
-    that cannot lean on a second fitted threshold. Reported beside the joint fit."""
-    violation, _, max_ambiguity, _ = preset_thresholds(kind)
+    let through (no help from free space, which keeps the preset's value): a fit that cannot
+    lean on a second fitted threshold. Reported beside the joint fit."""
+    violation = preset_thresholds(kind)[0]
 
     def above(runs: list[Sample]) -> int:
         wrong = [s.feature_inliers for s in runs if not s.correct and s.passes_unfitted]
@@ -229,28 +227,27 @@ def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
 
     full, partial = checked_runs(samples)
     min_features = above(full)
-    return violation, min_features, max_ambiguity, max(min_features, above(partial))
+    return violation, min_features, max(min_features, above(partial))
 
 
 def _fit_full(samples: list[Sample], kind: str):
-    """(max_free_space_violation, min_feature_inliers, max_ambiguity) for runs checked from both
-    sides; the preset's own values when no sample is wrong (nothing to fit on)."""
+    """(max_free_space_violation, min_feature_inliers) for runs checked from both sides; the
+    preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
-        return preset_thresholds(kind)[:3]
+        return preset_thresholds(kind)[:2]
     runs, best_count, best = Runs(samples), -1, None
     for v in VIOLATION_GRID:          # ascending: the first of tied settings is the strictest
-        for a in AMBIGUITY_GRID:
-            right, wrong = runs.counts((v, FEATURE_AXIS, a, FEATURE_AXIS))
-            safe = wrong == 0
-            if not safe.any():
-                continue
-            count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
-            if count > best_count:
-                best_count, best = count, (float(v), safe, right, a)
+        right, wrong = runs.counts((v, FEATURE_AXIS, FEATURE_AXIS))
+        safe = wrong == 0
+        if not safe.any():
+            continue
+        count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
+        if count > best_count:
+            best_count, best = count, (float(v), safe, right)
     if best is None:   # nothing is safe: publish nothing
-        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1]), AMBIGUITY_GRID[0]
-    v, safe, right, a = best
-    return v, strictest_features(safe, right), a
+        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1])
+    v, safe, right = best
+    return v, strictest_features(safe, right)
 
 
 def families(samples: list[Sample]) -> list[str]:
@@ -263,8 +260,8 @@ def families(samples: list[Sample]) -> list[str]:
 
 
 def _row(name: str, thresholds: Thresholds, figures) -> str:
-    v, f, a, p = thresholds
-    return (f"| {name} | {v:.2f} | {f} | {'off' if a > 1 else f'{a:.2f}'} | {p} | "
+    v, f, p = thresholds
+    return (f"| {name} | {v:.2f} | {f} | {p} | "
             + " | ".join(map(str, (figures[3], figures[0], figures[1], figures[2]))) + " |")
 
 
@@ -272,7 +269,7 @@ def _blind_row(name: str, thresholds: Thresholds, held: list[Sample]) -> str:
     """The held-out runs again without the target's viewpoint, and without either."""
     map_scan = score([s.blinded(True) for s in held], thresholds)
     map_map = score([s.blinded(False) for s in held], thresholds)
-    return (f"| {name} | {thresholds[3]} | {map_scan[3]} | {map_scan[0]} | {map_scan[1]} / {map_scan[2]} | "
+    return (f"| {name} | {thresholds[2]} | {map_scan[3]} | {map_scan[0]} | {map_scan[1]} / {map_scan[2]} | "
             f"{map_map[1]} / {map_map[2]} |")
 
 
@@ -355,18 +352,18 @@ def report(samples: list[Sample]) -> str:
     lines = ["## Held out (the headline)", "", headline(samples, folded, inside), "",
              "Wrong poses published with their place held out:", "", wrong_held_out(folded), "",
              "What the fitted thresholds are left to do:", "", unfitted_share(samples), "",
-             "The same, with the feature thresholds fitted to stop those alone (free space and ambiguity at "
-             "the presets' values, not leaned on):", "", alone, "",
+             "The same, with the feature thresholds fitted to stop those alone (free space at the presets' "
+             "value, not leaned on):", "", alone, "",
              "The same with the thresholds where one fit on all the training places puts them (``fit``, the "
              "rule before ``stable_fit``: up to the edge of the wrong poses those places produced):", "", edge, "",
              "Wrong poses that fit published with their place held out:", "", wrong_held_out(edge_folds), "",
-             "How far each fitted threshold moves with the place left out (10 in max_ambiguity: off):", "",
+             "How far each fitted threshold moves with the place left out:", "",
              fold_spread(edge_folds, folded), "",
              "## Per place", ""]
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
         table = [f"### {kind}", "", f"| held out | {' | '.join(THRESHOLD_NAMES)} | held-out runs | correct | "
-                 "published correct | published WRONG |", "|---|---|---|---|---|---|---|---|---|"]
+                 "published correct | published WRONG |", "|---|---|---|---|---|---|---|---|"]
         blind = ["", f"{kind}, the same held-out runs with viewpoints dropped (the partial threshold applies):", "",
                  "| held out | min_feature_inliers_partial | runs | correct | target's dropped (scan to map): "
                  "published correct / WRONG | both dropped (map to map): published correct / WRONG |",
@@ -379,7 +376,7 @@ def report(samples: list[Sample]) -> str:
             table.append(_row(family, thresholds, figures))
             blind.append(_blind_row(family, thresholds, held))
             blind_totals += [score([s.blinded(k) for s in held], thresholds) for k in (True, False)]
-        table.append(f"| **sum over held-out places** | | | | | {totals[3]} | {totals[0]} | {totals[1]} | "
+        table.append(f"| **sum over held-out places** | | | | {totals[3]} | {totals[0]} | {totals[1]} | "
                      f"{totals[2]} |")
         blind.append(f"| **sum over held-out places** | | {blind_totals[0][3]} | {blind_totals[0][0]} | "
                      f"{blind_totals[0][1]} / {blind_totals[0][2]} | {blind_totals[1][1]} / {blind_totals[1][2]} |")

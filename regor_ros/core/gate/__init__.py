@@ -9,8 +9,9 @@ A wrong pose published with confidence is the worst outcome, so a pose is accept
   more when free space cannot be checked from both sides (a map has no viewpoint);
 - neither cloud puts surfaces into space the other sensor saw through, and the surface both saw
   was seen from the same side (visibility.py);
-- the pose turned by 180 degrees about an axis of symmetry of the overlap does not explain the
-  clouds about as well (rivals.py: when both poses fit, neither can be trusted);
+- no twin of the pose turned about the scene's symmetry (a corridor's half turn, a box room's
+  quarter turn) is one the evidence cannot tell from it (rivals.py: when two poses fit, neither
+  can be trusted);
 - at least one independent neighbourhood of surface faces every direction: where none does, the
   pose slides along a repeated structure (a bookshelf's bays) and fits as well (slide.py);
 - it keeps to the gravity prior, lies inside the search region a hint gave, and

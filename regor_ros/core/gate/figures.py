@@ -27,13 +27,16 @@ class RivalFigures:
     violation: np.ndarray       # its worst free-space figure
     opposite_sides: np.ndarray  # its matched surface seen from opposite sides
     distance_deg: np.ndarray    # its rotation from the pose after refinement
+    lead_chance: np.ndarray     # chance that a tie gives the pose its lead in independent agreeing matches
 
     @classmethod
     def of(cls, rows) -> RivalFigures:
-        """From (inlier ratio, feature ratio, violation, opposite sides, distance) rows, None for
-        a figure not measured."""
-        table = np.array([[NOT_MEASURED if v is None else float(v) for v in row] for row in rows],
-                         dtype=float).reshape(-1, len(dataclasses.fields(cls)))
+        """From (inlier ratio, feature ratio, violation, opposite sides, distance, lead chance)
+        rows, None for a figure not measured (and for a row's missing last figures: a CSV from
+        before they were recorded)."""
+        width = len(dataclasses.fields(cls))
+        table = np.array([[NOT_MEASURED if v is None else float(v) for v in row] + [NOT_MEASURED] * (width - len(row))
+                          for row in rows], dtype=float).reshape(-1, width)
         return cls(*table.T)
 
     def rows(self) -> list[dict]:
@@ -101,7 +104,8 @@ class Figures:
                 value = getattr(self, f.name)
                 out[f.name] = None if isinstance(value, float) and np.isnan(value) else value
         out["rivals"] = ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:{r['violation']}:"
-                                 f"{r['opposite_sides']}:{r['distance_deg']:.1f}" for r in self.rivals.rows())
+                                 f"{r['opposite_sides']}:{r['distance_deg']:.1f}:{r['lead_chance']}"
+                                 for r in self.rivals.rows())
         return out
 
     @classmethod

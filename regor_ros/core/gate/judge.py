@@ -10,8 +10,8 @@ The checks, in the order a reason names the first that fails:
 - beyond chance (not fitted): the overlap on the target's surfaces, and either the feature matches
   (evidence.py) or the surfaces themselves (surface_evidence.py) more than chance gives;
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
-  matches (more when free space was not checked from both sides), free space, opposite sides,
-  and no symmetric rival about as well supported;
+  matches (more when free space was not checked from both sides), free space, opposite sides;
+- unique (not fitted): no symmetric rival that the evidence cannot tell from the pose (rivals.py);
 - pinned (a unit, not fitted): at least one independent neighbourhood of surface faces every
   direction, or the pose can slide along repeated structure (slide.py);
 - inside the hint's search region, and given back by the reverse registration (when run).
@@ -23,27 +23,37 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .figures import Figures, RivalFigures
+from .figures import Figures
 
 RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
 REVERSE_MAX_DEG = 10.0  # the reverse registration agrees when within these
 REVERSE_MAX_TAU = 3.0   # (translation in units of initial.inlier_threshold)
 
 
-def ambiguity(rivals: RivalFigures, max_violation, max_opposite):
-    """How well the best rival that is distinct from the pose and passes the visibility checks
-    explains the clouds, relative to the pose: the lesser of its point and feature support ratios
-    (NaN when there is no such rival). Over the last axis (the rivals)."""
+def rival_chances(f: Figures, a):
+    """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: not distinct
+    from the pose, failing a visibility check, or short of what a pose must have to be judged at
+    all (min_inliers, min_fitness, min_feature_inliers; the rival's counts are the pose's scaled by
+    its ratios). A turn that keeps a tenth of the overlap is no second pose, however few matches
+    the pose has. Over the last axis (the rivals)."""
+    r = f.rivals
+
+    def per_pose(value):
+        return np.expand_dims(value, -1)
+
     with np.errstate(invalid="ignore"):
-        counts = ((rivals.distance_deg > RIVAL_MIN_DEG) & ~(rivals.violation > np.expand_dims(max_violation, -1))
-                  & ~(rivals.opposite_sides > np.expand_dims(max_opposite, -1)))
-    ratio = np.where(counts, np.minimum(rivals.inlier_ratio, rivals.feature_ratio), -np.inf)
-    best = ratio.max(axis=-1, initial=-np.inf)
-    return np.where(np.isinf(best), np.nan, best)
+        counts = ((r.distance_deg > RIVAL_MIN_DEG) & ~(r.violation > per_pose(a.max_free_space_violation))
+                  & ~(r.opposite_sides > per_pose(a.max_opposite_sides))
+                  & (r.inlier_ratio * per_pose(f.num_inliers) >= per_pose(a.min_inliers))
+                  & (r.inlier_ratio * per_pose(f.fitness) >= per_pose(a.min_fitness))
+                  & (r.feature_ratio * per_pose(f.feature_inliers) >= per_pose(a.min_feature_inliers)))
+    return np.where(counts, r.lead_chance, np.nan)
 
 
-def _ambiguity(f: Figures, a):
-    return ambiguity(f.rivals, a.max_free_space_violation, a.max_opposite_sides)
+def ambiguity(f: Figures, a):
+    """How well the evidence tells the pose from its rivals: the largest of the contenders' lead
+    chances (NaN when there is none)."""
+    return np.fmax.reduce(rival_chances(f, a), axis=-1, initial=np.nan)
 
 
 def _beyond_chance(log10_false_alarms, a):
@@ -120,10 +130,12 @@ CHECKS = (
           lambda f, a: (f"{100 * f.opposite_sides:.0f} % of the shared surface was seen from opposite sides "
                         f"(acceptance.max_opposite_sides={a.max_opposite_sides}): the clouds are back to back, "
                         "the pose is wrong")),
-    Check("max_ambiguity", lambda f, a: _ambiguity(f, a) >= a.max_ambiguity,
-          lambda f, a: (f"the pose turned by 180 deg fits with {100 * _ambiguity(f, a):.0f} % of its support "
-                        f"(acceptance.max_ambiguity={a.max_ambiguity}): a symmetric scene, neither pose can "
-                        "be trusted")),
+    Check("max_ambiguity", lambda f, a: ambiguity(f, a) > a.max_ambiguity,
+          lambda f, a: (f"ambiguous: two poses fit. The pose turned about the scene's symmetry (a box room's "
+                        "quarter turn, a corridor's half turn) passes the visibility checks too, and a tie "
+                        f"would give this pose its lead in independent agreeing feature matches with "
+                        f"probability {ambiguity(f, a):.2f} (acceptance.max_ambiguity={a.max_ambiguity}); "
+                        "the rival is among the candidates")),
     Check("min_weakest_support", lambda f, a: f.weakest_support < a.min_weakest_support,
           lambda f, a: (f"ambiguous: only {f.weakest_support:.2f} independent neighbourhoods of surface face the "
                         f"direction the overlap pins least (acceptance.min_weakest_support={a.min_weakest_support}): "
@@ -164,14 +176,14 @@ class Verdict:
     accepted: bool
     reason: str            # why it was not accepted; empty when accepted
     failed: str = ""       # the name of the check that failed (Check.name); empty when accepted
-    ambiguity: float | None = None  # support ratio of the best rival that passes the visibility checks
+    ambiguity: float | None = None  # judge.ambiguity: the largest lead chance of a rival that counts
     carried_by: str = ""   # the test against chance that carried an accepted pose: "feature matches" or "surfaces"
 
 
 def judge(figures: Figures, acceptance) -> Verdict:
     """The verdict on one pose, naming the first check it fails."""
     index = int(first_failure(figures, acceptance))
-    level = float(_ambiguity(figures, acceptance))
+    level = float(ambiguity(figures, acceptance))
     shown = None if np.isnan(level) else level
     if index == PASSED:
         return Verdict(True, "", "", shown, carried_by(figures, acceptance))

@@ -18,7 +18,7 @@ from ..metrics import rotation_error_deg, translation_error
 from ..search_region import SearchRegion
 from .evidence import Evidence, evidence
 from .figures import Figures
-from .judge import MEASURABLE, passes
+from .judge import MEASURABLE, passes, rival_chances
 from .rivals import symmetric_rivals
 from .slide import weakest_support
 from .surface_evidence import SurfaceEvidence, surface_evidence
@@ -33,6 +33,12 @@ class Measured:
     visibility: VisibilityFigures  # with what the figures leave out: how many points each side saw
     evidence: Evidence
     surfaces: SurfaceEvidence | None = None  # the surfaces' test, when it was run
+    rival_poses: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4, 4)))  # one per rival
+
+    def undecided_rivals(self, acceptance) -> np.ndarray:
+        """The rivals' poses that the evidence cannot tell from the pose: the poses a user should
+        see beside it."""
+        return self.rival_poses[rival_chances(self.figures, acceptance) > acceptance.max_ambiguity]
 
 
 def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple,
@@ -60,9 +66,10 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         independent_agreeing=support.independent_agreeing, feature_inliers=int(agree.sum()),
         weakest_support=slide_support,
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
+    rival_poses = np.zeros((0, 4, 4))
     if passes(figures, config.acceptance, MEASURABLE):
-        rivals = symmetric_rivals(T, figures.feature_inliers, (match_source, match_target), final_target,
-                                  source, target, config, prior)
+        rivals, rival_poses = symmetric_rivals(T, overlap, (match_source, match_target), support.independent_agreeing,
+                                               source, target, config, prior)
         figures = dataclasses.replace(figures, rivals=rivals)
     surfaces = None
     bound = np.log10(config.acceptance.max_false_alarms)
@@ -72,7 +79,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         figures = dataclasses.replace(
             figures, surface_log10_false_alarms=surfaces.log10_false_alarms, surface_cells=surfaces.cells,
             surface_cells_agreeing=surfaces.agreeing, surface_chance=surfaces.chance)
-    return Measured(figures, visibility, support, surfaces)
+    return Measured(figures, visibility, support, surfaces, rival_poses)
 
 
 def gravity_figures(T: np.ndarray, prior: GravityPrior, source: PreparedCloud, target: PreparedCloud) -> dict:
