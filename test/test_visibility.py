@@ -43,7 +43,7 @@ def room(spacing=0.02, seed=0):
 
 def matched(T, source):
     """Feature matches that all agree with T (so the feature check passes)."""
-    return source.points, transform_points(T, source.points)
+    return source.points, transform_points(T, source.points), np.ones(len(source), dtype=bool)
 
 
 def verdict_on_visibility(T, source, target):

@@ -398,14 +398,9 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=measured.visibility,
         evidence=measured.evidence,
-        candidates=_candidates(T, initial.candidates, measured.undecided_rivals(config.acceptance),
-                               config.initial.inlier_threshold))
-
-
-def _candidates(T: np.ndarray, searched: list, twins: np.ndarray, tau: float) -> list[Candidate]:
-    """The pose, then the symmetric twins the evidence cannot tell from it, then the other places
-    the search found; each with the search's support at its place."""
-    return [Candidate(pose, support) for pose, support in led_by([T, *twins], searched, tau)]
+        candidates=[Candidate(pose, support) for pose, support in
+                    led_by([T, *measured.undecided_rivals(config.acceptance)], initial.candidates,
+                           config.initial.inlier_threshold)])
 
 
 def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,

@@ -68,7 +68,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     rival_poses = np.zeros((0, 4, 4))
     if passes(figures, config.acceptance, MEASURABLE):
-        rivals, rival_poses = symmetric_rivals(T, overlap, (match_source, match_target), support.independent_agreeing,
+        rivals, rival_poses = symmetric_rivals(T, overlap, matches, support.independent_agreeing,
                                                source, target, config, prior)
         figures = dataclasses.replace(figures, rivals=rivals)
     surfaces = None

@@ -106,8 +106,8 @@ def symmetric_rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_
                      prior: GravityPrior | None = None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
-    (source points, target points) and ``independent_agreeing`` how many of them agree with ``T``,
-    one per descriptor radius. Inliers are counted on the same RIVAL_POINTS source keypoints (for
+    (source points, target points, which of them agree with ``T``) and ``independent_agreeing``
+    how many agree, one per descriptor radius. Inliers are counted on the same RIVAL_POINTS source keypoints (for
     speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out of
     the height band, is no rival (a road seen upside down)."""
     _, final_target, target_normals = overlap
@@ -116,16 +116,17 @@ def symmetric_rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_
     est, gate, tau = config.estimation, config.acceptance, config.initial.inlier_threshold
     sample = evenly_spaced(source.points, RIVAL_POINTS)
     own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
-    own_matches = int(agreeing(T, *matches, tau).sum())
-    turned = np.concatenate([half_turns(final_target) @ T, quarter_turns(T, target_normals, matches, tau)])
+    *pairs, agree_with_T = matches
+    own_matches = int(agree_with_T.sum())
+    turned = np.concatenate([half_turns(final_target) @ T, quarter_turns(T, target_normals, pairs, tau)])
     if prior is not None:
         turned = turned[prior.allows(turned, source, target)]
     rows, poses = [], []
     for start in turned:
         refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, RIVAL_ITERATIONS,
                                prior and prior.clamp)
-        agree = agreeing(refined.transform, *matches, tau)
-        chance = lead_chance(independent_agreeing, len(independent(matches[0][agree], config.features.fpfh_radius)))
+        agree = agreeing(refined.transform, *pairs, tau)
+        chance = lead_chance(independent_agreeing, len(independent(pairs[0][agree], config.features.fpfh_radius)))
         # free space is what costs (a map seen from the rival's place); a rival the pose clearly
         # leads makes nothing ambiguous whatever it shows, so it is not measured
         worst = opposite = None
