@@ -76,10 +76,11 @@ def test_a_wrong_indoor_pose_is_not_carried_by_its_surfaces():
     assert figures.surface_log10_false_alarms > 0
 
 
-def figures(features: float, surfaces: float) -> Figures:
+def figures(features: float, surfaces: float, feature_inliers: int = 60, target_side: float = 0.0) -> Figures:
     """A pose every check passes but those against chance (log10 false alarms of each test)."""
     return Figures(num_inliers=500, fitness=0.5, surface_agreement=0.99, log10_false_alarms=features,
-                   independent_agreeing=2, feature_inliers=60, free_space_source=0.0, free_space_target=0.0,
+                   independent_agreeing=2, feature_inliers=feature_inliers, free_space_source=0.0,
+                   free_space_target=target_side,
                    surface_log10_false_alarms=surfaces, surface_cells=124, surface_cells_agreeing=123,
                    surface_chance=0.8)
 
@@ -94,6 +95,47 @@ def test_either_test_against_chance_carries_a_pose_and_the_verdict_says_which():
         assert not withheld.accepted and withheld.failed == "max_false_alarms" and withheld.carried_by == ""
     assert "123 of 124 independent cells" in judge(figures(2.5, 0.4), gate).reason
     assert "cells" not in judge(figures(2.5, float("nan")), gate).reason   # not measured: not told
+
+
+def test_a_pose_its_surfaces_carry_needs_no_feature_count_unless_free_space_was_checked_one_way():
+    """min_feature_inliers was fitted on poses the feature matches carry; a sparse scan's right pose
+    has a few even where its surfaces prove it. Without free space from both sides the features
+    must still stand on their own (min_feature_inliers_partial)."""
+    gate = OUTDOOR.acceptance
+    few = gate.min_feature_inliers - 3
+    assert judge(figures(2.5, -5.6, few), gate).accepted
+    withheld = judge(figures(2.5, 0.4, few), gate)
+    assert not withheld.accepted and withheld.failed == "max_false_alarms"
+    assert judge(figures(-4.0, float("nan"), few), gate).failed == "min_feature_inliers"
+    one_way = judge(figures(2.5, -5.6, few, target_side=float("nan")), gate)
+    assert one_way.failed == "min_feature_inliers" and "min_feature_inliers_partial" in one_way.reason
+
+
+def test_a_sparse_scan_with_fewer_agreeing_matches_than_the_count_is_published_on_its_surfaces(avia):
+    """scan_000221 thinned to every 4th point is registered 0.1 deg / 2 cm from the truth with
+    fewer agreeing feature matches than min_feature_inliers (measured: 0-2); its cells on the map's
+    surfaces carry it."""
+    target, queries = avia
+    query = queries["scan_000221"]
+    result = register(query.scan[::4], target, OUTDOOR)
+    assert is_success(result.transform, query.truth, "outdoor")
+    assert result.num_feature_inliers < OUTDOOR.acceptance.min_feature_inliers
+    assert result.accepted and result.verdict.carried_by == "surfaces", result.reason
+
+
+def test_a_wrong_pose_with_as_few_agreeing_matches_is_not_carried_by_its_surfaces():
+    """The revisit loop's scan_000200 alone lands 15.5 deg / 5.8 m off with 8 agreeing feature matches (4
+    independent: chance gives that much) and 48 of its 59 cells on the map's surfaces, which wrong
+    poses refined there nearly match (67 %): neither test carries it."""
+    require_shared_data("the surface evidence tests")
+    cloud, trajectory, queries = load_sequence(DATA / "revisit" / "avia_hku2_loop")
+    target = prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory)
+    query = {q.id: q for q in queries}["scan_000200"]
+    result = register(query.scan, target, OUTDOOR)
+    assert not is_success(result.transform, query.truth, "outdoor")
+    assert result.num_feature_inliers < 2 * OUTDOOR.acceptance.min_feature_inliers
+    assert not result.accepted and result.verdict.failed == "max_false_alarms", result.reason
+    assert result.figures.surface_log10_false_alarms > 0
 
 
 def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdict(avia):

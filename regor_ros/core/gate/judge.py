@@ -78,7 +78,12 @@ def carried_by(f: Figures, a) -> str:
 
 
 def _needed_features(f: Figures, a):
-    return np.where(f.both_sides, a.min_feature_inliers, a.min_feature_inliers_partial)
+    """The feature count a pose needs. None where its surfaces carried it against chance and free
+    space was checked from both sides: a sparse scan has a few matches even when right, and the
+    count was fitted for the feature test's poses; where free space was not checked both ways,
+    the features must still stand on their own."""
+    carried = np.where(_beyond_chance(f.surface_log10_false_alarms, a), 0, a.min_feature_inliers)
+    return np.where(f.both_sides, carried, a.min_feature_inliers_partial)
 
 
 def _features_reason(f: Figures, a) -> str:

@@ -73,8 +73,10 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         figures = dataclasses.replace(figures, rivals=rivals)
     surfaces = None
     bound = np.log10(config.acceptance.max_false_alarms)
-    if (figures.log10_false_alarms > bound
-            and passes(figures, dataclasses.replace(config.acceptance, max_false_alarms=np.inf))):
+    # the surfaces can carry a pose the features do not: measured where nothing else withholds it
+    # (their feature count included, which a pose the surfaces carry does not need: judge.py)
+    unless_chance = dataclasses.replace(config.acceptance, max_false_alarms=np.inf, min_feature_inliers=0)
+    if figures.log10_false_alarms > bound and passes(figures, unless_chance):
         surfaces = surface_evidence(T, source, target, config, hypotheses, bound, prior)
         figures = dataclasses.replace(
             figures, surface_log10_false_alarms=surfaces.log10_false_alarms, surface_cells=surfaces.cells,
