@@ -93,9 +93,10 @@ def test_spherical_bins_and_free_space_classes_are_the_numpy_expressions():
     assert not seen[~usable].any() and not inside[~usable].any()
 
 
-def _filtered_free_depth(index, ranges, width, rows, cols):
+def _filtered_free_depth(index, ranges, width, rows, cols, blur):
     """The range image as RangeImage.build wrote it before the kernel: a minimum and a maximum
-    filter per footprint width (azimuth wraps, elevation takes the nearest row)."""
+    filter per footprint width, the minimum ``blur`` bins wider (azimuth wraps, elevation takes the
+    nearest row)."""
     from scipy.ndimage import maximum_filter, minimum_filter
     free = np.full((rows, cols), np.inf, dtype=np.float32)
     covered = np.zeros((rows, cols), dtype=bool)
@@ -104,13 +105,14 @@ def _filtered_free_depth(index, ranges, width, rows, cols):
         np.minimum.at(nearest, index[width == w], ranges[width == w])
         nearest = nearest.reshape(rows, cols)
         covered |= maximum_filter(np.isfinite(nearest), size=2 * w - 1, mode=("nearest", "wrap"))
-        free = np.minimum(free, minimum_filter(nearest, size=2 * w + 1, mode=("nearest", "wrap")))
+        free = np.minimum(free, minimum_filter(nearest, size=2 * (w + blur) + 1, mode=("nearest", "wrap")))
     free[~covered] = 0.0
     return free
 
 
 def test_splatted_free_depth_is_the_filtered_image():
-    """Returns near the poles and across the azimuth seam, footprints of 1 to 8 bins."""
+    """Returns near the poles and across the azimuth seam, footprints of 1 to 8 bins, read as they
+    are and blurred by a shaking sequence's bins."""
     rng = np.random.default_rng(7)
     rows, cols = 181, 360
     n = 5000
@@ -118,8 +120,9 @@ def test_splatted_free_depth_is_the_filtered_image():
                             (rng.integers(0, rows, 20) * cols + rng.choice([0, 1, cols - 2, cols - 1], 20))])
     ranges = rng.uniform(0.5, 80, n).astype(np.float32)
     width = rng.choice(np.arange(1, 9), n, p=[0.7, 0.1, 0.05, 0.05, 0.03, 0.03, 0.02, 0.02]).astype(np.int64)
-    np.testing.assert_array_equal(kernels.splatted_free_depth(index, ranges, width, rows, cols),
-                                  _filtered_free_depth(index, ranges, width, rows, cols))
+    for blur in (0, 3):
+        np.testing.assert_array_equal(kernels.splatted_free_depth(index, ranges, width, rows, cols, blur),
+                                      _filtered_free_depth(index, ranges, width, rows, cols, blur))
 
 
 def test_within_any_is_the_ball_query():

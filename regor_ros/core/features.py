@@ -8,12 +8,12 @@ from scipy.spatial import cKDTree
 
 from . import kernels
 from .cloud import PreparedCloud, SeenCloud, check_viewpoint, clean_points
-from .config import FeatureConfig
+from .config import AcceptanceConfig, FeatureConfig
 from .errors import RegistrationError
 from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .neighbour_grid import NeighbourGrid
-from .range_image import RangeImage
+from .shake import seen_views
 
 FPFH_CHUNK = 100_000  # keypoints per FPFH call: bounds its memory (about 100 MB) on a map
 
@@ -90,14 +90,16 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
-            trajectory=None, may_face_sensors: bool = True) -> PreparedCloud:
+            trajectory=None, may_face_sensors: bool = True, gate: AcceptanceConfig | None = None) -> PreparedCloud:
     """Downsample, estimate normals, compute FPFH and L2-normalise the features; with known
     viewpoints also the range image of what each sensor saw (from its raw points), and without
     one the map view (seen from any position; ``trajectory``, the map's sensor poses, adds the
     views from where it was built). With config.normals_toward_sensors and the sensor positions
     known (viewpoints, or the trajectory), the normals face the nearest of them (toward_nearest),
     unless ``may_face_sensors`` is false: two clouds' features compare only under one convention,
-    and register() prepares a source under its target's."""
+    and register() prepares a source under its target's. Scans fused along odometry have their views
+    read as wide as their own disagreement asks (shake.py; judged with ``gate``, the free-space check's
+    settings)."""
     if cloud.viewpoints is not None:
         for i, vp in enumerate(cloud.viewpoints):
             check_viewpoint(vp, name if len(cloud.parts) == 1 else f"{name} scan {i}")
@@ -116,12 +118,11 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
             f"{name}: {n} points after downsampling at voxel_size={config.voxel_size:g} m "
             f"(from {input_size}), need at least {config.min_points}; lower features.voxel_size "
             "or send a denser cloud")
-    views, map_view, sensors = (), None, cloud.viewpoints
+    views, map_view, sensors, shake = (), None, cloud.viewpoints, 0
     if cloud.viewpoints is not None:
         if trajectory is not None:
             raise RegistrationError(f"{name}: a trajectory is for a cloud without viewpoint (a map)")
-        views = tuple(RangeImage.build(p, vp, config.range_image_resolution)
-                      for p, vp in zip(parts, cloud.viewpoints, strict=True))
+        views, shake = seen_views(parts, cloud.viewpoints, config.range_image_resolution, config.voxel_size, gate)
     else:
         try:
             positions = None if trajectory is None else trajectory_positions(trajectory)
@@ -142,4 +143,4 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                          config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
-                         input_size, views, map_view, toward)
+                         input_size, views, map_view, toward, shake)

@@ -425,19 +425,21 @@ def free_space_classes(points, viewpoint, free_depth, step, min_range, margin, m
 
 
 @njit(**JIT)
-def splatted_free_depth(index, ranges, width, rows, cols):
+def splatted_free_depth(index, ranges, width, rows, cols, blur):
     """A range image's free depth (rows, cols) from its returns: each return (flat bin ``index``,
     float32 ``ranges``) covers the bins fewer than ``width`` bins from its own, and is read as
-    free depth out to ``width`` bins (the nearest return counts); azimuth wraps around, elevation
-    stops at the poles. A bin no return covers is unknown (0). The same image as a minimum and a
-    maximum filter per footprint width, written once per return instead of once per width."""
+    free depth out to ``width`` + ``blur`` bins (the nearest return counts); azimuth wraps around,
+    elevation stops at the poles. A bin no return covers is unknown (0). The same image as a
+    minimum and a maximum filter per footprint width, written once per return instead of once per
+    width."""
     free = np.full((rows, cols), np.inf, dtype=np.float32)
     covered = np.zeros((rows, cols), dtype=np.bool_)
     for i in range(len(index)):
         row, col, w, depth = index[i] // cols, index[i] % cols, width[i], ranges[i]
-        for r in range(max(row - w, 0), min(row + w, rows - 1) + 1):
+        reach = w + blur
+        for r in range(max(row - reach, 0), min(row + reach, rows - 1) + 1):
             near_row = abs(r - row) < w
-            for step in range(-w, w + 1):
+            for step in range(-reach, reach + 1):
                 c = (col + step) % cols
                 if depth < free[r, c]:
                     free[r, c] = depth
@@ -941,7 +943,7 @@ def warm_up() -> None:
         region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
         spherical_bins(points, 0.01, 8, 1e-3)
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
-        splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4)
+        splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4, 0)
         within_any(points, points[:2], np.ones(2))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid_nearest(points, np.zeros(3), 0.1, 0.1, keys, grid_table(keys), np.array([0, 2], np.int64),

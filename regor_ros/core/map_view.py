@@ -54,7 +54,7 @@ class MapView:
     resolution_deg: float
     trajectory: np.ndarray   # (K, 3) the map's sensor positions, thinned; (0, 3) when unknown
     trajectory_tree: cKDTree | None  # over them; None when unknown
-    _cache: dict[int, tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
+    _cache: dict[tuple[int, int], tuple[float, RangeImage]] = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, surface: np.ndarray, voxel: float, resolution_deg: float,
@@ -64,30 +64,31 @@ class MapView:
         return cls(surface, voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)
 
-    def image(self, position: np.ndarray, reach: float) -> RangeImage:
-        """The map seen from ``position`` out to ``reach``."""
+    def image(self, position: np.ndarray, reach: float, blur: int = 0) -> RangeImage:
+        """The map seen from ``position`` out to ``reach``, read ``blur`` bins wider (RangeImage.build)."""
         near = kernels.within_any(self.surface, np.asarray(position, dtype=np.float64).reshape(1, 3),
                                   np.array([reach], dtype=np.float64))
-        return RangeImage.build(self.surface[near], position, self.resolution_deg, self.footprint, reach)
+        return RangeImage.build(self.surface[near], position, self.resolution_deg, self.footprint, reach, blur)
 
-    def images(self, positions: np.ndarray, reach: float) -> list[RangeImage]:
+    def images(self, positions: np.ndarray, reach: float, blur: int = 0) -> list[RangeImage]:
         """The map seen from the candidate sensor positions (thinned as the trajectory is: scans
         fused along a slow walk see about the same), and from the map's own sensor poses nearest
-        to them (up to TRAJECTORY_VIEWS each, within ``reach``)."""
-        images = [self.image(p, reach) for p in thinned(positions, VIEW_SPACING * self.footprint)]
+        to them (up to TRAJECTORY_VIEWS each, within ``reach``); read ``blur`` bins wider for a
+        shaking sequence's points (shake.py)."""
+        images = [self.image(p, reach, blur) for p in thinned(positions, VIEW_SPACING * self.footprint)]
         if self.trajectory_tree is not None:
             k = min(TRAJECTORY_VIEWS, len(self.trajectory))
             distances, index = self.trajectory_tree.query(positions, k=k)
             chosen = np.unique(np.asarray(index).reshape(-1)[np.asarray(distances).reshape(-1) <= reach])
-            images += [self._trajectory_image(int(i), reach) for i in chosen]
+            images += [self._trajectory_image(int(i), reach, blur) for i in chosen]
         return images
 
-    def _trajectory_image(self, i: int, reach: float) -> RangeImage:
-        cached = self._cache.get(i)
+    def _trajectory_image(self, i: int, reach: float, blur: int) -> RangeImage:
+        cached = self._cache.get((i, blur))
         if cached is not None and cached[0] >= reach:
             return cached[1]
         if len(self._cache) >= MAX_CACHED_VIEWS:
             self._cache.pop(next(iter(self._cache)))
-        image = self.image(self.trajectory[i], reach)
-        self._cache[i] = (reach, image)
+        image = self.image(self.trajectory[i], reach, blur)
+        self._cache[(i, blur)] = (reach, image)
         return image

@@ -161,7 +161,7 @@ def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: 
     if isinstance(points, ScanSequence):
         if viewpoint is not None:
             raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
-        return prepare(points.fused(), config.features, name, trajectory)
+        return prepare(points.fused(), config.features, name, trajectory, gate=config.acceptance)
     return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
 
 
@@ -234,7 +234,7 @@ def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors)
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance)
 
 
 def register(source: SourceInput, target: CloudInput, config: RegorConfig | None = None, *,
@@ -283,7 +283,8 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
         turn = regrid_rotation(config.seed, attempts)
         regrid_start = time.perf_counter()
         try:
-            turned = prepare(raw_source.moved(turn), config.features, "source", may_face_sensors=toward)
+            turned = prepare(raw_source.moved(turn), config.features, "source", may_face_sensors=toward,
+                             gate=config.acceptance)
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
         retry = _register_once(turned, target, config, prior and prior.turned(turn[:3, :3]))

@@ -34,11 +34,12 @@ class RangeImage:
 
     @classmethod
     def build(cls, points: np.ndarray, viewpoint, resolution_deg: float, footprint: float = 0.0,
-              max_range: float = np.inf) -> RangeImage:
+              max_range: float = np.inf, blur: int = 0) -> RangeImage:
         """From the returns ``points`` seen from ``viewpoint``. With ``footprint`` (the spacing of
         downsampled points, a map's) each point covers the bins its footprint subtends, so a
         near surface sampled coarsely still hides what lies behind it; returns beyond
-        ``max_range`` are left out."""
+        ``max_range`` are left out. ``blur`` reads each bin's free depth that many bins wider
+        (the directions a shaking sequence's scans disagree by: shake.py)."""
         viewpoint = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         rows, cols = _shape(resolution_deg)
         ranges, index = _bins(points - viewpoint, resolution_deg, cols)
@@ -51,7 +52,7 @@ class RangeImage:
             width = np.clip(np.ceil(half / np.radians(resolution_deg)).astype(np.int64), 1, MAX_SPLAT_BINS)
         # a point covers its footprint's bins; its free depth is read one bin wider (depth edges:
         # the nearer surface counts); a bin with no return is unknown, never free
-        free = kernels.splatted_free_depth(index, ranges.astype(np.float32), width, rows, cols)
+        free = kernels.splatted_free_depth(index, ranges.astype(np.float32), width, rows, cols, int(blur))
         return cls(viewpoint, free, float(resolution_deg),
                    float(ranges.max()) if len(ranges) else 0.0)
 

@@ -40,6 +40,7 @@ class VisibilityFigures:
     source_seen: int = 0               # target keypoints that landed on the source's seen bins
     target_seen: int = 0
     map_seen: float | None = None   # against a map: fraction of the scan's keypoints on bins the map fills
+    shake_bins: int = 0             # a fused sequence's views were read this many bins wider (shake.py)
 
     @property
     def both_sides(self) -> bool:
@@ -65,7 +66,7 @@ class VisibilityFigures:
         return {"source_violation": self.source_violation, "target_violation": self.target_violation,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
                 "target_seen": self.target_seen, "map_seen": self.map_seen, "worst": self.worst,
-                "both_sides": self.both_sides}
+                "both_sides": self.both_sides, "shake_bins": self.shake_bins}
 
 
 def _fraction(seen: int, inside: int, min_seen: int) -> float | None:
@@ -113,7 +114,8 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
                                _nearest(transform_points(T, source.viewpoints), points),
                                points, normals, gate.free_space_min_seen)
     return VisibilityFigures(source_side[0], target_side[0], sides, source_side[1], target_side[1],
-                             source_side[2] if source.map_view is not None else target_side[2])
+                             source_side[2] if source.map_view is not None else target_side[2],
+                             max(source.shake_bins, target.shake_bins))
 
 
 def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, gate: AcceptanceConfig,
@@ -142,7 +144,7 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
         # the map seen from where the pose puts the other cloud's sensors, out to their reach
         points = transform_points(T_seer_other, other.points)
         reach = max(view.max_range for view in other.views) + margin
-        images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach)
+        images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach, other.shake_bins)
         seen, inside = seen_and_inside(images, points, margin, ratio, widen(points))
         fraction_seen = seen / max(len(points), 1)
         counts = seen >= min_seen and fraction_seen >= gate.map_view_min_seen
