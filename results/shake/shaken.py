@@ -47,9 +47,10 @@ def main(data: Path, shakes: list[float]) -> None:
                 as_steady = prepare(sequence.fused(), OUTDOOR.features, "scans")
                 for name, source in (("as steady", as_steady), ("read wide", read_wide)):
                     result = register(source, target, OUTDOOR)
+                    correct = is_success(result.transform, query.truth, "outdoor")
                     row = dict(map=folder.name, query=query.id, shake_deg=degrees, read=name,
-                               shake_bins=source.shake_bins, correct=is_success(result.transform, query.truth, "outdoor"),
-                               published=result.accepted, free_space=result.visibility.worst, reason=result.reason[:80])
+                               shake_bins=source.shake_bins, correct=correct, published=result.accepted,
+                               free_space=result.visibility.worst, reason=result.reason[:80])
                     rows.append(row)
                     print(" ".join(str(v) for v in row.values()), flush=True)
     with open(Path(__file__).with_name("shaken.csv"), "w", newline="") as out:
