@@ -97,6 +97,17 @@ def moved_pair(name, seed):
     return src @ M[:3, :3].T + M[:3, 3], tgt, T_gt @ np.linalg.inv(M), kind
 
 
+@pytest.fixture(scope="module")
+def avia_map():
+    """The Livox Avia map prepared with its trajectory (outdoor preset), and its queries by id."""
+    require_shared_data("the Avia map")
+    from regor_ros.core import RegorConfig, prepare_cloud
+    from regor_ros.tools.map_benchmark import load_sequence
+    cloud, trajectory, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
+    prepared = prepare_cloud(cloud, RegorConfig.preset("outdoor"), "map", trajectory=trajectory)
+    return prepared, {q.id: q for q in queries}
+
+
 @pytest.fixture(scope="session")
 def kitchen_pair():
     return moved_pair("3dmatch_redkitchen_5_6_ds", 7)

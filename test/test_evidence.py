@@ -23,13 +23,6 @@ def avia_sequence():
     return load_sequence(DATA / "maps" / "fastlio_avia_hku2")
 
 
-@pytest.fixture(scope="module")
-def avia_map(avia_sequence):
-    """The Livox Avia map prepared with its trajectory, and its queries by id."""
-    cloud, trajectory, queries = avia_sequence
-    return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
-
-
 def test_a_sparse_scans_wrong_pose_with_chance_feature_support_is_rejected_as_chance(avia_sequence):
     """scan_000039 alone (a narrow-field Avia scan), judged at the point-level pose: it lands
     100 deg off inside the dense map with more agreeing feature matches (11) than the fixed count

@@ -2,8 +2,6 @@
 with each other, so a right pose passes the check while a wrong one still fails; a steady sequence
 is read as it always was."""
 import numpy as np
-import pytest
-from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
@@ -11,31 +9,10 @@ from regor_ros.core.estimate import inliers_at, resolution_uncertainty
 from regor_ros.core.features import prepare
 from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import to_matrix
-from regor_ros.core.sequence import ScanSequence
-from regor_ros.tools.map_benchmark import load_sequence
+from regor_ros.tools.map_benchmark import shaken
 
 OUTDOOR = RegorConfig.preset("outdoor")
 SHAKE_DEG = 3.0
-
-
-@pytest.fixture(scope="module")
-def avia():
-    """The Livox Avia map prepared with its trajectory, and its queries by id."""
-    require_shared_data("the shake tests")
-    cloud, trajectory, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
-    return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
-
-
-def shaken(sequence: ScanSequence, seed: int) -> ScanSequence:
-    """The sequence with each older scan's odometry turned by SHAKE_DEG about a random axis through
-    its sensor and shifted by a few centimetres: a hand-held sensor's deskew and odometry error."""
-    rng = np.random.default_rng(seed)
-    poses = []
-    for pose in sequence.poses[:-1]:
-        axis = rng.normal(size=3)
-        turn = Rotation.from_rotvec(np.radians(SHAKE_DEG) * axis / np.linalg.norm(axis)).as_matrix()
-        poses.append(pose @ to_matrix(turn, rng.normal(0.0, 0.03, 3)))
-    return ScanSequence(sequence.scans, poses + [sequence.poses[-1]], sequence.viewpoint)
 
 
 def worst_at(T, fused, target):
@@ -45,14 +22,14 @@ def worst_at(T, fused, target):
     return visibility_figures(T, fused, target, OUTDOOR.acceptance, uncertainty=uncertainty).worst
 
 
-def test_a_shaky_sequences_right_pose_passes_free_space_and_a_turned_one_does_not(avia):
+def test_a_shaky_sequences_right_pose_passes_free_space_and_a_turned_one_does_not(avia_map):
     """scan_000237 and the four scans before it, shaken by 3 deg: read as a steady sequence's, 5 %
     of the scans lie in the map's free space at the true pose (the check allows 3 %); read as wide
     as the scans disagree with each other, the true pose passes, and the pose turned by 90 deg
     still fails."""
-    target, queries = avia
+    target, queries = avia_map
     query = queries["scan_000237"]
-    sequence = shaken(query.history, seed=4)
+    sequence = shaken(query.history, SHAKE_DEG, np.random.default_rng(4))
     fused = prepare_cloud(sequence, OUTDOOR, "scans")
     assert fused.shake_bins >= 1
     limit = OUTDOOR.acceptance.max_free_space_violation
@@ -64,7 +41,7 @@ def test_a_shaky_sequences_right_pose_passes_free_space_and_a_turned_one_does_no
     assert worst_at(turned, fused, target) > 0.1
 
 
-def test_a_steady_sequence_is_read_as_it_always_was(avia):
-    _, queries = avia
+def test_a_steady_sequence_is_read_as_it_always_was(avia_map):
+    _, queries = avia_map
     for name in ("scan_000005", "scan_000237"):
         assert prepare_cloud(queries[name].history, OUTDOOR, "scans").shake_bins == 0

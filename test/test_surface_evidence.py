@@ -2,7 +2,6 @@
 lays its cells on the map far beyond what wrong poses refined there do; a slide along a corridor
 and a scan of another place do not; either test against chance carries a pose (judge)."""
 import numpy as np
-import pytest
 from conftest import DATA, require_shared_data
 
 from regor_ros.core import Figures, RegorConfig, judge, prepare_cloud, register
@@ -15,14 +14,6 @@ OUTDOOR = RegorConfig.preset("outdoor")
 HYPOTHESES = 1250   # what the search tries outdoors (initial.seeds' hypotheses)
 
 
-@pytest.fixture(scope="module")
-def avia():
-    """The Livox Avia map prepared with its trajectory, and its queries by id."""
-    require_shared_data("the surface evidence tests")
-    cloud, trajectory, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
-    return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
-
-
 def evidence_at(T, source, target):
     """The test at ``T`` refined as the estimator refines (point level, then planes), all decoys."""
     est, voxel = OUTDOOR.estimation, OUTDOOR.features.voxel_size
@@ -32,10 +23,10 @@ def evidence_at(T, source, target):
     return surface_evidence(T, source, target, OUTDOOR, HYPOTHESES, give_up_above=np.inf)
 
 
-def test_a_sparse_scans_right_pose_is_carried_by_its_surfaces(avia):
+def test_a_sparse_scans_right_pose_is_carried_by_its_surfaces(avia_map):
     """scan_000259 thinned to every 4th point: 2-3 independent agreeing feature matches, but its
     cells lie on the map's surfaces where no wrong pose refined there gets as many."""
-    target, queries = avia
+    target, queries = avia_map
     query = queries["scan_000259"]
     source = prepare_cloud(query.scan[::4], OUTDOOR, "scan", viewpoint=(0, 0, 0))
     evidence = evidence_at(query.truth, source, target)
@@ -44,11 +35,11 @@ def test_a_sparse_scans_right_pose_is_carried_by_its_surfaces(avia):
     assert evidence.log10_false_alarms < -3
 
 
-def test_a_slide_along_a_corridor_and_another_place_are_not(avia):
+def test_a_slide_along_a_corridor_and_another_place_are_not(avia_map):
     """scan_000133 alone registers 1.6 m off along a corridor with nearly all of its cells on the
     map's surfaces, but a decoy slides as well; a MulRan scan placed in the Avia map at its
     registered pose fits no better than decoys there."""
-    target, queries = avia
+    target, queries = avia_map
     slide = queries["scan_000133"]
     source = prepare_cloud(slide.scan, OUTDOOR, "scan", viewpoint=(0, 0, 0))
     result = register(source, target, OUTDOOR)
@@ -111,11 +102,11 @@ def test_a_pose_its_surfaces_carry_needs_no_feature_count_unless_free_space_was_
     assert one_way.failed == "min_feature_inliers" and "min_feature_inliers_partial" in one_way.reason
 
 
-def test_a_sparse_scan_with_fewer_agreeing_matches_than_the_count_is_published_on_its_surfaces(avia):
+def test_a_sparse_scan_with_fewer_agreeing_matches_than_the_count_is_published_on_its_surfaces(avia_map):
     """scan_000221 thinned to every 4th point is registered 0.1 deg / 2 cm from the truth with
     fewer agreeing feature matches than min_feature_inliers (measured: 0-2); its cells on the map's
     surfaces carry it."""
-    target, queries = avia
+    target, queries = avia_map
     query = queries["scan_000221"]
     result = register(query.scan[::4], target, OUTDOOR)
     assert is_success(result.transform, query.truth, "outdoor")
@@ -138,8 +129,8 @@ def test_a_wrong_pose_with_as_few_agreeing_matches_is_not_carried_by_its_surface
     assert result.figures.surface_log10_false_alarms > 0
 
 
-def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdict(avia):
-    target, queries = avia
+def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdict(avia_map):
+    target, queries = avia_map
     query = queries["scan_000259"]
     alone = register(query.scan, target, OUTDOOR)          # carried by its feature matches
     assert alone.accepted and alone.verdict.carried_by == "feature matches"

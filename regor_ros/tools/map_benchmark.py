@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..core import (
     ERROR_SIGMAS_99,
@@ -51,6 +52,7 @@ LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
 INPUTS = ("single", "sequence")
 STRESS_INPUTS = ("single", "thinned", "sequence")
 THINNING = 4  # --stress: every 4th point of a scan, a sparse sensor's density (64 beams -> 16)
+SHAKE_SHIFT = 0.03  # [m] a shaken scan's odometry shift (standard deviation per axis)
 MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
               *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "error_sigmas",
@@ -113,6 +115,18 @@ def _score(T: np.ndarray, truths: list[np.ndarray]) -> tuple:
     """(success, rotation error, translation error) against the nearest of the true poses."""
     best = min(truths, key=lambda G: translation_error(T, G))
     return is_success(T, best, "outdoor"), rotation_error_deg(T, best), translation_error(T, best)
+
+
+def shaken(sequence: ScanSequence, degrees: float, rng: np.random.Generator) -> ScanSequence:
+    """The sequence with each older scan's odometry turned by ``degrees`` about a random axis
+    through its sensor and shifted by a few centimetres: a hand-held sensor's deskew and odometry
+    error, which no shared recording has (core/shake.py)."""
+    poses = []
+    for pose in sequence.poses[:-1]:
+        axis = rng.normal(size=3)
+        turn = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
+        poses.append(pose @ to_matrix(turn, rng.normal(0.0, SHAKE_SHIFT, 3)))
+    return ScanSequence(sequence.scans, poses + [sequence.poses[-1]], sequence.viewpoint)
 
 
 def enlarged(cloud: np.ndarray, trajectory: np.ndarray | None, others: list[str]):

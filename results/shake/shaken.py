@@ -11,25 +11,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.features import prepare
-from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
-from regor_ros.core.sequence import ScanSequence
-from regor_ros.tools.map_benchmark import load_sequence
+from regor_ros.tools.map_benchmark import load_sequence, shaken
 
 OUTDOOR = RegorConfig.preset("outdoor")
-
-
-def shaken(sequence: ScanSequence, degrees: float, rng) -> ScanSequence:
-    poses = []
-    for pose in sequence.poses[:-1]:
-        axis = rng.normal(size=3)
-        turn = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
-        poses.append(pose @ to_matrix(turn, rng.normal(0.0, 0.03, 3)))
-    return ScanSequence(sequence.scans, poses + [sequence.poses[-1]], sequence.viewpoint)
 
 
 def main(data: Path, shakes: list[float]) -> None:
