@@ -52,6 +52,5 @@ def seen_views(parts: list[np.ndarray], viewpoints: np.ndarray, resolution_deg: 
 def _passes(image: RangeImage, points: np.ndarray, gate: AcceptanceConfig) -> bool:
     """Whether no more than max_free_space_violation of ``points`` seen by ``image`` lie in its free
     space (too few seen to tell passes)."""
-    seen, inside = image.classify(points, gate.free_space_margin, gate.free_space_margin_ratio)
-    count = int(seen.sum())
-    return count < gate.free_space_min_seen or inside.sum() <= gate.max_free_space_violation * count
+    seen, inside = image.violations(points, gate.free_space_margin, gate.free_space_margin_ratio)
+    return seen < gate.free_space_min_seen or inside <= gate.max_free_space_violation * seen

@@ -78,7 +78,7 @@ def carried_by(f: Figures, a) -> str:
 
 
 def _needed_features(f: Figures, a):
-    """The feature count a pose needs. None where its surfaces carried it against chance and free
+    """The feature count a pose needs: 0 where its surfaces carried it against chance and free
     space was checked from both sides: a sparse scan has a few matches even when right, and the
     count was fitted for the feature test's poses; where free space was not checked both ways,
     the features must still stand on their own."""
