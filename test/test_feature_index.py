@@ -63,6 +63,25 @@ def test_the_exact_search_finds_nearest_candidates_and_back_in_one_pass_ties_to_
     assert (candidate_similarity[:, :-1] == candidate_similarity[:, 1:]).sum() > 1000   # ties tested
 
 
+def test_the_exact_search_refills_a_list_whose_sampled_floor_left_fewer_than_k():
+    """The rows that set a list's starting floor (every FLOOR_STRIDE-th) are all the queries'
+    best and equal, so the floor is the best similarity and no row passes it: each list is filled
+    again from its tile's products, and the K candidates are still the full product's, ties to
+    the lower row."""
+    rng = np.random.default_rng(7)
+    data = rng.integers(0, 3, (2000, 33)).astype(np.float32)
+    data[::kernels.FLOOR_STRIDE] = 3.0
+    queries = rng.integers(0, 3, (300, 33)).astype(np.float32)
+    rows = np.arange(0, 300, 3)
+    product = queries @ data.T
+    _, _, candidates, candidate_similarity, _ = FeatureIndex(data, 2000, 1, 1).nearest_and_candidates(
+        queries, rows, 20)
+    ranked = np.array([np.lexsort((np.arange(2000), -row))[:20] for row in product[rows]])
+    np.testing.assert_array_equal(candidates, ranked)
+    np.testing.assert_array_equal(candidates[:, :5], np.tile(np.arange(5) * kernels.FLOOR_STRIDE, (len(rows), 1)))
+    np.testing.assert_array_equal(candidate_similarity, np.take_along_axis(product[rows], ranked, 1))
+
+
 def test_a_real_map_index_finds_what_the_exact_search_finds():
     """On a real scan and map (MulRan, OS1-64), the inverted file returns at least 99 % of the
     exact K = 100 candidates (counted by similarity: FPFH has many ties) and of the exact nearest

@@ -19,8 +19,8 @@ MAPS = ("fastlio_avia_hku2", "scaloam_mulran_kaist03")
 
 
 def worker(data: Path, tree: str) -> None:
-    """Register what stdin names ("pair INDEX" or "map SEQUENCE QUERY INPUT"), print the seconds
-    and the verdict."""
+    """Register what stdin names ("pair INDEX" or "map SEQUENCE QUERY INPUT"), print the seconds,
+    the verdict and the pose (its top three rows, every digit)."""
     sys.path.insert(0, tree)
     from regor_ros.core import RegorConfig, prepare_cloud, register
     from regor_ros.core.kernels import warm_up
@@ -47,7 +47,8 @@ def worker(data: Path, tree: str) -> None:
                 print("skip", flush=True)
                 continue
             result = register(source, prepared, outdoor)
-        print(f"{result.timings['total']:.5f} {int(result.accepted)}", flush=True)
+        pose = " ".join(repr(float(x)) for x in result.transform[:3].ravel())
+        print(f"{result.timings['total']:.5f} {int(result.accepted)} {pose}", flush=True)
 
 
 def jobs(data: Path) -> list[str]:
@@ -71,7 +72,7 @@ def main(data: Path, before: str, after: str) -> None:
     for w in workers.values():
         assert w.stdout.readline().startswith("ready")
     seconds = {name: {"pair": [], "map": []} for name in versions}
-    verdicts_differ = 0
+    verdicts_differ, poses_differ, largest = 0, 0, 0.0
     for k, job in enumerate(jobs(data)):
         answers = {}
         for name in (("before", "after") if k % 2 == 0 else ("after", "before")):
@@ -81,13 +82,17 @@ def main(data: Path, before: str, after: str) -> None:
         if answers["before"] == ["skip"]:
             continue
         verdicts_differ += answers["before"][1] != answers["after"][1]
-        for name, (value, _) in answers.items():
+        poses = {name: np.array(answer[2:], dtype=float) for name, answer in answers.items()}
+        poses_differ += not np.array_equal(poses["before"], poses["after"])
+        largest = max(largest, float(np.abs(poses["before"] - poses["after"]).max()))
+        for name, (value, *_) in answers.items():
             seconds[name][job.split()[0]].append(float(value))
     for kind in ("pair", "map"):
         b, a = np.array(seconds["before"][kind]), np.array(seconds["after"][kind])
         print(f"{kind}s ({len(b)}): median {np.median(b):.3f} s before, {np.median(a):.3f} s after "
               f"(ratio {np.median(a) / np.median(b):.3f}; median of the differences {np.median(a - b):+.4f} s)")
     print(f"verdicts that differ: {verdicts_differ}")
+    print(f"poses that differ: {poses_differ} (largest difference of an entry {largest:.3g})")
 
 
 if __name__ == "__main__":
