@@ -5,7 +5,7 @@ from scipy.spatial import cKDTree
 from regor_ros.core.cloud import PreparedCloud
 from regor_ros.core.config import FeatureConfig, RegenerationConfig
 from regor_ros.core.feature_index import FeatureIndex
-from regor_ros.core.geometry import transform_points
+from regor_ros.core.geometry import transform_points, unique_rows
 from regor_ros.core.regenerate import LocalMatches, global_filter, three_point_filter
 
 
@@ -61,3 +61,16 @@ def test_global_filter_keeps_the_consistent_majority():
     chosen = global_filter(src, tgt, RegenerationConfig(), rng)
     assert len(chosen) == 40
     assert (chosen < 150).all()
+
+
+def test_unique_rows_gives_numpys_unique_rows_and_first_occurrences():
+    """Matches merged by regeneration and cells of the evidence: negative coordinates, spans too
+    wide to pack (numpy's own row sort then), and no rows at all."""
+    rng = np.random.default_rng(3)
+    cases = [rng.integers(0, 40, (3000, 2)), rng.integers(-30, 30, (4000, 3)),
+             rng.integers(-2 ** 40, 2 ** 40, (50, 3)), np.zeros((0, 2), np.int64)]
+    for values in cases:
+        rows, first = unique_rows(values)
+        expected_rows, expected_first = np.unique(values, axis=0, return_index=True)
+        np.testing.assert_array_equal(rows, expected_rows)
+        np.testing.assert_array_equal(first, expected_first)

@@ -13,7 +13,7 @@ _HOMES = {
     "cloud": ("MAX_ABS_COORDINATE", "PreparedCloud"),
     "gate.figures": ("Figures", "RivalFigures", "stack"),
     "gate.judge": ("CHECKS", "Verdict", "ambiguity", "judge", "passes"),
-    "geometry": ("attached_pose", "parse_numbers", "to_matrix", "transform_points"),
+    "geometry": ("attached_pose", "parse_numbers", "to_matrix", "transform_points", "unique_rows"),
     "kernels": ("warm_up",),
     "matching": ("match_features",),
     "metrics": ("ERROR_SIGMAS_99", "INLIER_THRESHOLDS", "correct_mask", "error_sigmas", "is_success",

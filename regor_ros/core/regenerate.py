@@ -15,6 +15,7 @@ from . import kernels
 from .cloud import PreparedCloud
 from .config import RegenerationConfig
 from .consistency import top_second_order
+from .geometry import unique_rows
 from .matching import generalized_mutual_matches
 
 
@@ -96,7 +97,7 @@ def regenerate(seed_src: np.ndarray, seed_tgt: np.ndarray, source: PreparedCloud
     centre_src, centre_tgt = seed_src[pick], seed_tgt[pick]
     m = local_matches(centre_src, centre_tgt, source, target, k, cfg.gmm_k)
     keep = three_point_filter(centre_src, centre_tgt, m, source, target, cfg, 2 * k)
-    merged = np.unique(np.stack([m.source_index[keep], m.target_index[keep]], axis=1), axis=0)
+    merged = unique_rows(np.stack([m.source_index[keep], m.target_index[keep]], axis=1))[0]
     if len(merged) == 0:
         return seed_src, seed_tgt
     src, tgt = source.points[merged[:, 0]], target.points[merged[:, 1]]

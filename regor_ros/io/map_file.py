@@ -17,7 +17,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..core import MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
+from ..core import (MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix,
+                    unique_rows)
 from .cloud_io import CloudFileError, read_cloud
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
@@ -101,8 +102,7 @@ def _is_trajectory(path: Path) -> bool:
 def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> tuple[float, float]:
     """(median keypoints within the normal radius of a keypoint, what a line sampled at the voxel
     size has): a normal, and so a feature, needs a surface around the point."""
-    keypoints = points[np.unique(np.floor(points / features.voxel_size).astype(np.int64), axis=0,
-                                 return_index=True)[1]]
+    keypoints = points[unique_rows(np.floor(points / features.voxel_size).astype(np.int64))[1]]
     rng = np.random.default_rng(0)
     sample = keypoints[rng.choice(len(keypoints), min(SURFACE_SAMPLE, len(keypoints)), replace=False)]
     counts = cKDTree(keypoints).query_ball_point(sample, features.normal_radius, return_length=True) - 1

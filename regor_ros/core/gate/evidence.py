@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 
-from ..geometry import transform_points
+from ..geometry import transform_points, unique_rows
 
 DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
 DENSITY_SEED = 0
@@ -77,7 +77,7 @@ def independent(points: np.ndarray, radius: float) -> np.ndarray:
         return np.zeros(0, dtype=np.int64)
     cell = np.floor(points / radius).astype(np.int64)
     # one representative per cell of the radius, then the greedy rule among representatives
-    first = np.unique(cell, axis=0, return_index=True)[1]
+    first = unique_rows(cell)[1]
     first.sort()
     candidates = points[first]
     tree = cKDTree(candidates)
