@@ -2,6 +2,7 @@
 (open3d, the compiled kernels, scipy's spatial and statistics modules): each is asked in a fresh
 interpreter, which then lists what it had loaded."""
 import json
+import os
 import subprocess
 import sys
 
@@ -49,3 +50,15 @@ def test_the_core_loads_a_name_when_it_is_asked_for():
             "print(light, missing, 'regor_ros.core.pipeline' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert run.stdout.split() == ["True", "[]", "True"], run.stderr
+
+
+@pytest.mark.parametrize("user_setting", [None, "ACTIVE"])
+def test_the_core_asks_openmp_threads_to_sleep_while_they_wait_unless_the_user_said_otherwise(user_setting):
+    """Set on import, before the kernels load their OpenMP runtime (it reads the setting once)."""
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if user_setting:
+        env["OMP_WAIT_POLICY"] = user_setting
+    code = ("import os, sys, regor_ros.core; "
+            "print(os.environ.get('OMP_WAIT_POLICY'), 'numba' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert run.stdout.split() == [user_setting or "PASSIVE", "False"], run.stderr

@@ -5,7 +5,15 @@ here, never from the modules behind it. Each name is loaded when first asked for
 tool that only needs the configuration answers ``--help`` without loading open3d, scipy's spatial
 modules and the compiled kernels.
 """
+import os
 from importlib import import_module
+
+# OpenMP threads waiting for work sleep instead of spinning: GNU's runtime spins first, and on a
+# robot computer's two cores shared with other processes a spinning thread takes the core the work
+# needs (a 3DMatch pair beside one busy process: about 2 s instead of 0.8 s). The runtimes (numba's
+# kernels, FAISS's) read it when they load, which is after this package is imported unless the
+# process loaded them before; a user's own setting stands.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 _HOMES = {
     "config": ("CHOICES", "PRESETS", "FeatureConfig", "RegorConfig", "param"),

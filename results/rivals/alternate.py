@@ -5,7 +5,9 @@ worker process started from its own source tree.
 
 Run from the repository root with the package's environment, the other version checked out
 beside it (e.g. ``git worktree add /tmp/before HEAD~1``):
-    python results/rivals/alternate.py ../shared/data /tmp/before .
+    python results/rivals/alternate.py ../shared/data /tmp/before . [--busy N]
+``--busy N`` keeps N other processes spinning on the cores throughout, as a robot's other
+software does.
 """
 import json
 import subprocess
@@ -64,8 +66,16 @@ def jobs(data: Path) -> list[str]:
     return out
 
 
-def main(data: Path, before: str, after: str) -> None:
-    versions = {"before": before, "after": after}
+def main(data: Path, before: str, after: str, busy: int) -> None:
+    spinning = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(busy)]
+    try:
+        compare(data, {"before": before, "after": after})
+    finally:
+        for process in spinning:
+            process.kill()
+
+
+def compare(data: Path, versions: dict) -> None:
     workers = {name: subprocess.Popen([sys.executable, __file__, "--worker", str(data), tree],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
                for name, tree in versions.items()}
@@ -99,4 +109,5 @@ if __name__ == "__main__":
     if sys.argv[1] == "--worker":
         worker(Path(sys.argv[2]), sys.argv[3])
     else:
-        main(Path(sys.argv[1]), sys.argv[2], sys.argv[3])
+        busy = int(sys.argv[sys.argv.index("--busy") + 1]) if "--busy" in sys.argv else 0
+        main(Path(sys.argv[1]), sys.argv[2], sys.argv[3], busy)
