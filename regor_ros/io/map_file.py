@@ -17,8 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..core import (MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix,
-                    unique_rows)
+from ..core import MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix, unique_rows
 from .cloud_io import CloudFileError, read_cloud
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
