@@ -7,7 +7,7 @@ from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, regist
 from regor_ros.core.config import ConfigError
 from regor_ros.core.gate.figures import Figures
 from regor_ros.core.gate.judge import judge
-from regor_ros.core.gate.rivals import symmetric_rivals
+from regor_ros.core.gate.rivals import rivals as refined_rivals
 from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
@@ -51,7 +51,7 @@ def verdict_on_visibility(T, source, target):
     (measured on the pose as given, the rivals refined as the pipeline does)."""
     visibility = visibility_figures(T, source, target, INDOOR.acceptance, np.arange(len(target)))
     overlap = (source.points, target.points, target.normals)
-    rivals, _ = symmetric_rivals(T, overlap, matched(T, source), 100, source, target, INDOOR)
+    rivals, _ = refined_rivals(T, overlap, matched(T, source), 100, [], source, target, INDOOR)
     figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
                       log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=len(source),
                       rivals=rivals, **visibility.as_figures())

@@ -21,12 +21,11 @@ from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
 from .geometry import transform_points
 from .gravity import GravityPrior
 from .matching import FeatureMatches
+from .metrics import rotation_error_deg, translation_error
+from .places import distinct
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
-# hypotheses closer than this are one candidate place (the refinement pulls one onto the other)
-DISTINCT_ANGLE_DEG = 10.0
-DISTINCT_TRANSLATION_FRACTION = 5.0  # of the inlier threshold
 SUPPORT_ROWS = 256  # source keypoints that rank hypotheses by candidate support
 
 
@@ -233,14 +232,13 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
 
 
 def same_place(A: np.ndarray, B: np.ndarray, inlier_threshold: float) -> bool:
-    """Whether two poses are one place of the search: within DISTINCT_ANGLE_DEG and
-    DISTINCT_TRANSLATION_FRACTION x tau of each other."""
-    return poses_close(A, B, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+    """Whether two poses are one place of the search (places.distinct, translation in units of
+    ``inlier_threshold``)."""
+    return not distinct(rotation_error_deg(A, B), translation_error(A, B) / inlier_threshold)
 
 
 def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:
-    """[(pose, support)] best first, each farther than DISTINCT_ANGLE_DEG or
-    DISTINCT_TRANSLATION_FRACTION x tau from every better-supported one: the places the search
+    """[(pose, support)] best first, each at another place (same_place) than every better-supported one: the places the search
     found, so a user sees how far ahead the winner is (a road or a row of trees offers several)."""
     out: list = []
     for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):

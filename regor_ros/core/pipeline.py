@@ -387,7 +387,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     measured = measure(refined, src_cloud, tgt_cloud, (init_src, init_tgt, initial_inlier), covariance,
-                       uncertainty, initial.hypotheses_tried, config, prior)
+                       uncertainty, initial.hypotheses_tried, [pose for pose, _ in initial.candidates], config, prior)
     verdict = judge(measured.figures, config.acceptance)
     lap("verification")
     timings["total"] = time.perf_counter() - start

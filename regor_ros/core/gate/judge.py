@@ -23,18 +23,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..places import distinct
 from .figures import Figures
 
-RIVAL_MIN_DEG = 10.0  # a refined rival closer than this to the pose has fallen back onto it
 REVERSE_MAX_DEG = 10.0  # the reverse registration agrees when within these
 REVERSE_MAX_TAU = 3.0   # (translation in units of initial.inlier_threshold)
 
 
 def rival_chances(f: Figures, a):
-    """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: not distinct
-    from the pose, failing a visibility check, or short of what a pose must have to be judged at
-    all (min_inliers, min_fitness, min_feature_inliers; the rival's counts are the pose's scaled by
-    its ratios). A turn that keeps a tenth of the overlap is no second pose, however few matches
+    """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: refined back
+    onto the pose's place (places.distinct: the search's own rule), failing a visibility check,
+    or short of what a pose must have to be judged at all (min_inliers, min_fitness,
+    min_feature_inliers; the rival's counts are the pose's scaled by its ratios). A turn that keeps a tenth of the overlap is no second pose, however few matches
     the pose has. Over the last axis (the rivals)."""
     r = f.rivals
 
@@ -42,7 +42,7 @@ def rival_chances(f: Figures, a):
         return np.expand_dims(value, -1)
 
     with np.errstate(invalid="ignore"):
-        counts = ((r.distance_deg > RIVAL_MIN_DEG) & ~(r.violation > per_pose(a.max_free_space_violation))
+        counts = (distinct(r.distance_deg, r.offset_tau) & ~(r.violation > per_pose(a.max_free_space_violation))
                   & ~(r.opposite_sides > per_pose(a.max_opposite_sides))
                   & (r.inlier_ratio * per_pose(f.num_inliers) >= per_pose(a.min_inliers))
                   & (r.inlier_ratio * per_pose(f.fitness) >= per_pose(a.min_fitness))
@@ -136,8 +136,9 @@ CHECKS = (
                         f"(acceptance.max_opposite_sides={a.max_opposite_sides}): the clouds are back to back, "
                         "the pose is wrong")),
     Check("max_ambiguity", lambda f, a: ambiguity(f, a) > a.max_ambiguity,
-          lambda f, a: (f"ambiguous: two poses fit. The pose turned about the scene's symmetry (a box room's "
-                        "quarter turn, a corridor's half turn) passes the visibility checks too, and a tie "
+          lambda f, a: (f"ambiguous: two poses fit. Another pose (the pose turned about the scene's symmetry: "
+                        "a box room's quarter turn, a corridor's half turn; or another place the search found: a "
+                        "room alike, the next bay of a shelf) passes the visibility checks too, and a tie "
                         f"would give this pose its lead in independent agreeing feature matches with "
                         f"probability {ambiguity(f, a):.2f} (acceptance.max_ambiguity={a.max_ambiguity}); "
                         "the rival is among the candidates")),

@@ -19,7 +19,7 @@ from ..search_region import SearchRegion
 from .evidence import Evidence, evidence
 from .figures import Figures
 from .judge import MEASURABLE, passes, rival_chances
-from .rivals import symmetric_rivals
+from .rivals import rivals
 from .slide import weakest_support
 from .surface_evidence import SurfaceEvidence, surface_evidence
 from .visibility import VisibilityFigures, visibility_figures
@@ -42,14 +42,15 @@ class Measured:
 
 
 def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple,
-            covariance: np.ndarray, uncertainty: tuple[float, float], hypotheses: int, config: RegorConfig,
-            prior: GravityPrior | None = None) -> Measured:
+            covariance: np.ndarray, uncertainty: tuple[float, float], hypotheses: int, places: list,
+            config: RegorConfig, prior: GravityPrior | None = None) -> Measured:
     """The figures of the refined pose T_target_source. ``matches`` are the feature matches
     (source points, target points, which of them agree with the pose within
     initial.inlier_threshold); ``uncertainty`` how well a right pose is known at this resolution
     (estimate.resolution_uncertainty: the free-space check's allowance); ``hypotheses`` how many
-    poses the search compared (the evidence's trials). Under a gravity ``prior`` the pose's tilt
-    and height are measured, and a symmetric rival, or a decoy, keeps to the prior."""
+    poses the search compared (the evidence's trials) and ``places`` the poses of the distinct
+    places it found, best first (rivals, with the pose's symmetric twins). Under a gravity
+    ``prior`` the pose's tilt and height are measured, and a rival, or a decoy, keeps to the prior."""
     T, voxel = refined.transform, config.features.voxel_size
     match_source, match_target, agree = matches
     final_source, final_target = source.points[refined.source_index], target.points[refined.target_index]
@@ -68,9 +69,9 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     rival_poses = np.zeros((0, 4, 4))
     if passes(figures, config.acceptance, MEASURABLE):
-        rivals, rival_poses = symmetric_rivals(T, overlap, matches, support.independent_agreeing,
-                                               source, target, config, prior)
-        figures = dataclasses.replace(figures, rivals=rivals)
+        rival_figures, rival_poses = rivals(T, overlap, matches, support.independent_agreeing, places,
+                                            source, target, config, prior)
+        figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
     bound = np.log10(config.acceptance.max_false_alarms)
     # the surfaces can carry a pose the features do not: measured where nothing else withholds it

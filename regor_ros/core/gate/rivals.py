@@ -1,19 +1,22 @@
-"""The symmetric rivals of a pose, and how far the evidence prefers the pose to each.
+"""The rivals of a pose, and how far the evidence prefers the pose to each.
 
-A box-like room, a corridor or a road turned around passes every other check. Two families of
-rival, each refined like the pose:
+A box-like room, a corridor or a road turned around passes every other check, and so can another
+place that looks alike (a second room of the same hotel, the next bay of a shelf). Three families
+of rival, each refined like the pose:
 - the pose turned by 180 degrees about each principal axis of its overlap, through its centroid;
 - the pose turned by a quarter, a half and three quarters about the direction most of the
   overlap's surfaces face (a floor, a wall): a box room repeats at quarter turns about it, about
   an axis that need not pass near the overlap (measured on the studyroom's turns: 1-2.5 deg from
   the true turn's axis, 0.4-1.9 m from the overlap's centre). Its translation is the one most
   feature matches vote for under the turned rotation: at a symmetric place the matches that
-  found the pose point to its twin as well.
+  found the pose point to its twin as well;
+- the best RIVAL_PLACES other places the search itself found (initial.distinct_candidates): the
+  runner-up of the search is the pose the features liked next, whatever made it look alike.
 
-A rival counts when it would pass on its own what any pose must (judge.rival_chances: the
-visibility checks, the inlier, fitness and feature-match minimums). How far the pose leads it is
-judged in independent units, not by a fitted ratio: the agreeing feature matches, one per
-descriptor radius (evidence.independent). Were both poses equally right, each independent
+A rival counts when it would pass on its own what any pose must (judge.rival_chances: a distinct
+place, the visibility checks, the inlier, fitness and feature-match minimums). How far the pose
+leads it is judged in independent units, not by a fitted ratio: the agreeing feature matches, one
+per descriptor radius (evidence.independent). Were both poses equally right, each independent
 agreeing match would fall to either with even odds; the rival's ``lead_chance`` is the
 probability that such a tie gives the pose at least its lead (a binomial tail). A large one
 means the evidence cannot tell the two apart (gate/judge.py's ambiguity).
@@ -28,7 +31,8 @@ from ..config import RegorConfig
 from ..estimate import agreeing, point_refine
 from ..geometry import evenly_spaced, to_matrix
 from ..gravity import GravityPrior
-from ..metrics import rotation_error_deg
+from ..initial import same_place
+from ..metrics import rotation_error_deg, translation_error
 from .evidence import independent, log10_binomial_tail
 from .figures import RivalFigures
 from .visibility import visibility_figures
@@ -36,6 +40,7 @@ from .visibility import visibility_figures
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
 RIVAL_ITERATIONS = 10
 QUARTER_TURNS_DEG = (90.0, 180.0, 270.0)
+RIVAL_PLACES = 3      # the search's best other places refined as rivals: the runner-ups it ranked
 FACING_DEG = 15.0     # a surface faces the dominant direction when its normal is within this of it
 FACING_ROUNDS = 5     # re-estimates of the dominant direction from the normals facing it
 _NEIGHBOUR_CELLS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
@@ -101,15 +106,16 @@ def lead_chance(own: int, rival: int) -> float:
     return float(10.0 ** log10_binomial_tail(own, own + rival, 0.5))
 
 
-def symmetric_rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_agreeing: int,
-                     source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-                     prior: GravityPrior | None = None) -> tuple[RivalFigures, np.ndarray]:
+def rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_agreeing: int, places: list,
+           source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+           prior: GravityPrior | None = None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
-    (source points, target points, which of them agree with ``T``) and ``independent_agreeing``
-    how many agree, one per descriptor radius. Inliers are counted on the same RIVAL_POINTS source keypoints (for
-    speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out of
-    the height band, is no rival (a road seen upside down)."""
+    (source points, target points, which of them agree with ``T``), ``independent_agreeing``
+    how many agree, one per descriptor radius, and ``places`` the poses of the distinct places
+    the search found, best first. Inliers are counted on the same RIVAL_POINTS source keypoints
+    (for speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out
+    of the height band, is no rival (a road seen upside down)."""
     _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
@@ -118,11 +124,13 @@ def symmetric_rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_
     own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
     *pairs, agree_with_T = matches
     own_matches = int(agree_with_T.sum())
-    turned = np.concatenate([half_turns(final_target) @ T, quarter_turns(T, target_normals, pairs, tau)])
+    others = [pose for pose in places if not same_place(pose, T, tau)][:RIVAL_PLACES]
+    starts = np.concatenate([half_turns(final_target) @ T, quarter_turns(T, target_normals, pairs, tau),
+                             np.reshape(others, (-1, 4, 4))])
     if prior is not None:
-        turned = turned[prior.allows(turned, source, target)]
+        starts = starts[prior.allows(starts, source, target)]
     rows, poses = [], []
-    for start in turned:
+    for start in starts:
         refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, RIVAL_ITERATIONS,
                                prior and prior.clamp)
         agree = agreeing(refined.transform, *pairs, tau)
@@ -134,6 +142,7 @@ def symmetric_rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_
             visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
             worst, opposite = visibility.worst, visibility.opposite_sides
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
-                     worst, opposite, rotation_error_deg(refined.transform, T), chance))
+                     worst, opposite, rotation_error_deg(refined.transform, T), chance,
+                     translation_error(refined.transform, T) / tau))
         poses.append(refined.transform)
     return RivalFigures.of(rows), np.array(poses).reshape(-1, 4, 4)
