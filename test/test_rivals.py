@@ -1,5 +1,6 @@
-"""Symmetric rivals: a box room's quarter turn found where it is, and a pose the evidence cannot
-tell from its rival withheld as ambiguous with both poses among the candidates."""
+"""Rivals: a box room's quarter turn found where it is, the search's other places refined, and a
+pose the evidence cannot tell from its rival withheld as ambiguous with both poses among the
+candidates."""
 import numpy as np
 from conftest import load_threedmatch
 from scipy.spatial.transform import Rotation
@@ -51,6 +52,34 @@ def test_only_a_rival_that_would_pass_on_its_own_makes_a_pose_ambiguous():
     assert ambiguity(figures, acceptance) == 0.3
     alone = Figures(**{**vars(figures), "rivals": RivalFigures.of(rows[1:])})
     assert np.isnan(ambiguity(alone, acceptance)) and judge(alone, acceptance).accepted
+
+
+def test_a_rival_counts_only_at_another_place_of_the_search():
+    acceptance = RegorConfig.preset("indoor").acceptance
+    # (..., turn, lead chance, offset in tau): refined back onto the pose (5 deg, 2 tau), slid
+    # along a shelf by a metre (2 deg, 10 tau), turned by 12 deg in place (12 deg, 1 tau), and a
+    # row from a CSV written before offsets were recorded (5 deg, no offset: the old rule, a turn)
+    rows = [(0.9, 0.9, 0.0, 0.0, 5.0, 0.6, 2.0), (0.9, 0.9, 0.0, 0.0, 2.0, 0.5, 10.0),
+            (0.9, 0.9, 0.0, 0.0, 12.0, 0.4, 1.0), (0.9, 0.9, 0.0, 0.0, 5.0, 0.7)]
+    figures = Figures(num_inliers=1000, fitness=0.5, surface_agreement=1.0, log10_false_alarms=-10.0,
+                      independent_agreeing=10, feature_inliers=100, rivals=RivalFigures.of(rows))
+    np.testing.assert_array_equal(np.isnan(rival_chances(figures, acceptance)), [True, False, False, True])
+    assert ambiguity(figures, acceptance) == 0.5
+
+
+def test_a_pose_slid_along_the_shelves_is_withheld_with_its_rival_among_the_candidates():
+    # 3DMatch studyroom 44 -> 42 (3DLoMatch), normals facing the sensors: the search's pose slides
+    # 1.3 m along the bookshelf at 2 deg. Its next place, refined, slides 0.6 m from it with as many
+    # agreeing feature matches: a tie gives the pose its lead about one time in three. Before the
+    # search's places were rivals, the slid pose was published
+    src, tgt, T_gt = load_threedmatch("studyroom", 44, 42)
+    config = RegorConfig.preset("indoor").replace({"features.normals_toward_sensors": True})
+    result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
+    assert rotation_error_deg(result.transform, T_gt) < 5 and translation_error(result.transform, T_gt) > 0.6
+    assert not result.accepted and result.verdict.failed == "max_ambiguity", result.reason
+    np.testing.assert_array_equal(result.candidates[0].transform, result.transform)
+    rival = result.candidates[1].transform
+    assert rotation_error_deg(rival, result.transform) < 10 and translation_error(rival, result.transform) > 0.5
 
 
 def test_a_box_room_turned_by_a_quarter_is_withheld_with_the_truth_among_the_candidates():
