@@ -198,8 +198,9 @@ class AcceptanceConfig:
                                        "and the pose slid along it fits as well (a unit, not fitted; 0 = off)",
                                        0.0, 1e6)
     max_ambiguity: float = param(0.05, "withhold a pose as ambiguous when the evidence cannot tell it from a rival "
-                                  "turned about the scene's symmetry (a half turn about the overlap's axes, a "
-                                  "quarter turn about its surfaces' dominant direction; refined) that would pass "
+                                  "(the pose turned about the scene's symmetry: a half turn about the overlap's "
+                                  "axes, a quarter turn about its surfaces' dominant direction; or one of the "
+                                  "search's best three other places; refined, at another place) that would pass "
                                   "the visibility checks and the inlier, fitness and feature-match minimums on its "
                                   "own: when a tie between the two would give the pose its lead in independent "
                                   "agreeing feature matches with more than this probability (a significance level, "

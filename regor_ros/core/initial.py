@@ -248,7 +248,7 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
 
 
 def led_by(leaders: list, candidates: list, inlier_threshold: float) -> list:
-    """The ``leaders`` (the final pose, then the twins the gate could not tell from it) first,
+    """The ``leaders`` (the final pose, then the rivals the gate could not tell from it) first,
     each carrying the best support of the candidates at its place, then the other candidates
     (best supported first): the published pose and its rivals."""
     def support_at(T):

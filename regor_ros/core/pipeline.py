@@ -59,7 +59,7 @@ class Correspondences:
 class Candidate:
     """A distinct pose, with the FS-TCD support (feature-verified matches that agree in length)
     the search found at its place (0: none there). The result's first is its own pose, then the
-    symmetric twins the gate could not tell from it, then the other places the search found; the
+    rivals the gate could not tell from it, then the other places the search found; the
     first's margin over the next says how unique the place is."""
 
     transform: np.ndarray   # 4x4 T_target_source
@@ -102,7 +102,7 @@ class RegistrationResult:
 
     @property
     def ambiguity(self) -> float | None:
-        """The largest chance that a tie gives this pose its lead over a symmetric rival (gate/rivals.py)."""
+        """The largest chance that a tie gives this pose its lead over a rival (gate/rivals.py)."""
         return self.verdict.ambiguity
 
     @property

@@ -14,7 +14,7 @@ from the gate. The checks not fitted keep the preset's values: the structural on
 min_fitness, six constrained degrees of freedom, the gravity prior), those against chance
 (``acceptance.min_surface_agreement``, a majority rule, and ``acceptance.max_false_alarms``, the
 a-contrario bound of 1), the opposite-sides check (``acceptance.max_opposite_sides``, a majority
-rule) and the symmetric rivals' test (``acceptance.max_ambiguity``, a significance level).
+rule) and the rivals' test (``acceptance.max_ambiguity``, a significance level).
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
 choices the strictest (the lowest free-space threshold, the highest feature counts): every tied

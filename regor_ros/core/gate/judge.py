@@ -11,7 +11,8 @@ The checks, in the order a reason names the first that fails:
   (evidence.py) or the surfaces themselves (surface_evidence.py) more than chance gives;
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
   matches (more when free space was not checked from both sides), free space, opposite sides;
-- unique (not fitted): no symmetric rival that the evidence cannot tell from the pose (rivals.py);
+- unique (not fitted): no rival (a symmetric twin, another place the search found) that the
+  evidence cannot tell from the pose (rivals.py);
 - pinned (a unit, not fitted): at least one independent neighbourhood of surface faces every
   direction, or the pose can slide along repeated structure (slide.py);
 - inside the hint's search region, and given back by the reverse registration (when run).
