@@ -51,7 +51,7 @@ def verdict_on_visibility(T, source, target):
     (measured on the pose as given, the rivals refined as the pipeline does)."""
     visibility = visibility_figures(T, source, target, INDOOR.acceptance, np.arange(len(target)))
     overlap = (source.points, target.points, target.normals)
-    rivals, _ = refined_rivals(T, overlap, matched(T, source), 100, [], source, target, INDOOR)
+    rivals, _ = refined_rivals(T, overlap, matched(T, source), [], source, target, INDOOR)
     figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
                       log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=len(source),
                       rivals=rivals, **visibility.as_figures())
@@ -186,8 +186,5 @@ def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
     one_sided = register(home.src, as_map, cfg, source_viewpoint=home.src_viewpoint)
     assert not one_sided.visibility.both_sides and one_sided.summary()["visibility"]["both_sides"] is False
     assert not one_sided.accepted and "min_feature_inliers_partial" in one_sided.reason
-    # with the count a two-sided check asks for, only the search's next place, which fits as well,
-    # still withholds it (gate/rivals.py)
     lenient = cfg.replace({"min_feature_inliers_partial": cfg.acceptance.min_feature_inliers})
-    withheld = register(home.src, as_map, lenient, source_viewpoint=home.src_viewpoint)
-    assert withheld.verdict.failed == "max_ambiguity", withheld.reason
+    assert register(home.src, as_map, lenient, source_viewpoint=home.src_viewpoint).accepted

@@ -1,8 +1,12 @@
-"""When two poses are one place of the search and when they are two.
+"""When two poses are one place of the search and when they are two answers.
 
-Hypotheses closer than this are one candidate place (the refinement pulls one onto the other);
-a rival refined to within it of a pose has fallen back onto the pose. numpy only: the gate's
-judge reads it, and the calibration loads the judge before any kernel.
+Hypotheses closer than DISTINCT_ANGLE_DEG and DISTINCT_TRANSLATION_FRACTION inlier thresholds are
+one candidate place (the refinement pulls one onto the other). A rival of a published pose is
+another answer only when it puts the pose's overlap elsewhere, by that same distance: a rival a
+dozen degrees off that moves the shared surface by a few centimetres is the same answer less well
+pinned, not a second one (and a pose's translation alone depends on where the source's frame
+happens to be: a fragment's camera metres from the overlap). numpy only: the gate's judge reads
+it, and the calibration loads the judge before any kernel.
 """
 from __future__ import annotations
 
@@ -14,6 +18,14 @@ DISTINCT_TRANSLATION_FRACTION = 5.0  # of the inlier threshold
 
 def distinct(angle_deg, offset_tau):
     """Whether poses ``angle_deg`` apart in rotation and ``offset_tau`` inlier thresholds apart in
-    translation are two places (arrays broadcast; NaN, not measured, is not distinct)."""
+    translation are two places of the search."""
+    return angle_deg >= DISTINCT_ANGLE_DEG or offset_tau >= DISTINCT_TRANSLATION_FRACTION
+
+
+def another_answer(overlap_moved_tau, angle_deg):
+    """Whether rivals that move the pose's overlap by ``overlap_moved_tau`` inlier thresholds (RMS)
+    are other answers than the pose (arrays broadcast). A rival recorded without it (a CSV from
+    before it was measured: NaN) is judged by its turn, DISTINCT_ANGLE_DEG, as it was then."""
+    moved, angle = np.asarray(overlap_moved_tau, dtype=float), np.asarray(angle_deg, dtype=float)
     with np.errstate(invalid="ignore"):
-        return (np.asarray(angle_deg) >= DISTINCT_ANGLE_DEG) | (np.asarray(offset_tau) >= DISTINCT_TRANSLATION_FRACTION)
+        return np.where(np.isnan(moved), angle >= DISTINCT_ANGLE_DEG, moved >= DISTINCT_TRANSLATION_FRACTION)

@@ -69,8 +69,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     rival_poses = np.zeros((0, 4, 4))
     if passes(figures, config.acceptance, MEASURABLE):
-        rival_figures, rival_poses = rivals(T, overlap, matches, support.independent_agreeing, places,
-                                            source, target, config, prior)
+        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, prior)
         figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
     bound = np.log10(config.acceptance.max_false_alarms)

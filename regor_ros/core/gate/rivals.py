@@ -15,10 +15,12 @@ of rival, each refined like the pose:
 
 A rival counts when it would pass on its own what any pose must (judge.rival_chances: a distinct
 place, the visibility checks, the inlier, fitness and feature-match minimums). How far the pose
-leads it is judged in independent units, not by a fitted ratio: the agreeing feature matches, one
-per descriptor radius (evidence.independent). Were both poses equally right, each independent
-agreeing match would fall to either with even odds; the rival's ``lead_chance`` is the
-probability that such a tie gives the pose at least its lead (a binomial tail). A large one
+leads it is judged in independent units, not by a fitted ratio: the feature matches that agree with
+one of the two and not the other, one per descriptor radius (evidence.independent); a match both
+agree with says nothing about which is right (a rival a few degrees off shares most of them: the
+two are then told apart, as in McNemar's test, by the matches only one explains). Were both poses
+equally right, each such match would fall to either with even odds; the rival's ``lead_chance`` is
+the probability that such a tie gives the pose at least its lead (a binomial tail). A large one
 means the evidence cannot tell the two apart (gate/judge.py's ambiguity).
 """
 from __future__ import annotations
@@ -29,10 +31,10 @@ from scipy.spatial.transform import Rotation
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import agreeing, point_refine
-from ..geometry import evenly_spaced, to_matrix
+from ..geometry import evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior
 from ..initial import same_place
-from ..metrics import rotation_error_deg, translation_error
+from ..metrics import rotation_error_deg
 from .evidence import independent, log10_binomial_tail
 from .figures import RivalFigures
 from .visibility import visibility_figures
@@ -98,28 +100,35 @@ def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple, ce
     return np.array([to_matrix(R, voted_translation(R, *matches, cell)) for R in turned])
 
 
+def overlap_moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
+    """How far pose ``A`` puts ``points`` (source frame) from where pose ``B`` does: the RMS
+    distance, which does not depend on where the source's frame is."""
+    moved = transform_points(A, points) - transform_points(B, points)
+    return float(np.sqrt(np.mean(np.sum(moved ** 2, axis=1))))
+
+
 def lead_chance(own: int, rival: int) -> float:
-    """Probability that a tie (each of the own + rival independent agreeing matches falling to
-    either pose with even odds) gives the pose at least ``own`` of them."""
+    """Probability that a tie (each of the own + rival independent matches that agree with only
+    one of the poses falling to either with even odds) gives the pose at least ``own`` of them."""
     if own <= 0:
         return 1.0
     return float(10.0 ** log10_binomial_tail(own, own + rival, 0.5))
 
 
-def rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_agreeing: int, places: list,
+def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
            source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
            prior: GravityPrior | None = None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
-    (source points, target points, which of them agree with ``T``), ``independent_agreeing``
-    how many agree, one per descriptor radius, and ``places`` the poses of the distinct places
-    the search found, best first. Inliers are counted on the same RIVAL_POINTS source keypoints
+    (source points, target points, which of them agree with ``T``) and ``places`` the poses of
+    the distinct places the search found, best first. Inliers are counted on the same RIVAL_POINTS source keypoints
     (for speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out
     of the height band, is no rival (a road seen upside down)."""
-    _, final_target, target_normals = overlap
+    overlap_source, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
     est, gate, tau = config.estimation, config.acceptance, config.initial.inlier_threshold
+    radius = config.features.fpfh_radius
     sample = evenly_spaced(source.points, RIVAL_POINTS)
     own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
     *pairs, agree_with_T = matches
@@ -131,10 +140,11 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_agreeing: 
         starts = starts[prior.allows(starts, source, target)]
     rows, poses = [], []
     for start in starts:
-        refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, RIVAL_ITERATIONS,
+        refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, est.max_iterations,
                                prior and prior.clamp)
         agree = agreeing(refined.transform, *pairs, tau)
-        chance = lead_chance(independent_agreeing, len(independent(pairs[0][agree], config.features.fpfh_radius)))
+        chance = lead_chance(len(independent(pairs[0][agree_with_T & ~agree], radius)),
+                             len(independent(pairs[0][agree & ~agree_with_T], radius)))
         # free space is what costs (a map seen from the rival's place); a rival the pose clearly
         # leads makes nothing ambiguous whatever it shows, so it is not measured
         worst = opposite = None
@@ -143,6 +153,6 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, independent_agreeing: 
             worst, opposite = visibility.worst, visibility.opposite_sides
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
-                     translation_error(refined.transform, T) / tau))
+                     overlap_moved(refined.transform, T, overlap_source) / tau))
         poses.append(refined.transform)
     return RivalFigures.of(rows), np.array(poses).reshape(-1, 4, 4)
