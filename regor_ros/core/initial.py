@@ -239,7 +239,8 @@ def same_place(A: np.ndarray, B: np.ndarray, inlier_threshold: float) -> bool:
 
 def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:
     """[(pose, support)] best first, each at another place (same_place) than every better-supported
-    one: the places the search found, so a user sees how far ahead the winner is (a road or a row of trees offers several)."""
+    one: the places the search found, so a user sees how far ahead the winner is (a road or a row
+    of trees offers several)."""
     out: list = []
     for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):
         if not any(same_place(poses[i], kept, inlier_threshold) for kept, _ in out):
