@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
 from regor_ros.core.gate.judge import judge, rival_chances
-from regor_ros.core.gate.rivals import dominant_direction, lead_chance, overlap_moved, voted_translation
+from regor_ros.core.gate.rivals import dominant_direction, lead_chance, moved, voted_translation
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 
 
@@ -54,11 +54,11 @@ def test_only_a_rival_that_would_pass_on_its_own_makes_a_pose_ambiguous():
     assert np.isnan(ambiguity(alone, acceptance)) and judge(alone, acceptance).accepted
 
 
-def test_a_rival_counts_only_when_it_puts_the_overlap_elsewhere():
+def test_a_rival_counts_only_when_it_puts_the_source_elsewhere():
     acceptance = RegorConfig.preset("indoor").acceptance
-    # (..., turn, lead chance, overlap moved in tau): turned by 12 deg about the overlap, which
-    # moves a tenth of a metre (the same answer, less well pinned); slid along a shelf by a metre
-    # at 2 deg; turned by a quarter; and two rows from a CSV written before the overlap's move was
+    # (..., turn, lead chance, source moved in tau): turned by 12 deg about the overlap, which
+    # moves the source a tenth of a metre (the same answer, less well pinned); slid along a shelf
+    # by a metre at 2 deg; turned by a quarter; and two rows from a CSV written before the move was
     # recorded, judged by their turn as then (5 deg: no; 15 deg: yes)
     rows = [(0.9, 0.9, 0.0, 0.0, 12.0, 0.6, 1.0), (0.9, 0.9, 0.0, 0.0, 2.0, 0.5, 10.0),
             (0.9, 0.9, 0.0, 0.0, 90.0, 0.4, 8.0), (0.9, 0.9, 0.0, 0.0, 5.0, 0.7), (0.9, 0.9, 0.0, 0.0, 15.0, 0.3)]
@@ -68,19 +68,19 @@ def test_a_rival_counts_only_when_it_puts_the_overlap_elsewhere():
     assert ambiguity(figures, acceptance) == 0.5
 
 
-def test_the_overlap_moved_by_a_turn_about_it_is_its_spread_not_the_frames_offset():
+def test_how_far_a_turn_moves_points_is_their_spread_not_the_frames_offset():
     points = np.array([[5.0, -0.5, 0.0], [5.0, 0.5, 0.0], [4.5, 0.0, 0.0], [5.5, 0.0, 0.0]])   # around (5, 0, 0)
     turn = Rotation.from_rotvec([0.0, 0.0, np.radians(12.0)]).as_matrix()
     about_overlap = np.eye(4)
     about_overlap[:3, :3] = turn
     about_overlap[:3, 3] = [5.0, 0.0, 0.0] - turn @ [5.0, 0.0, 0.0]
     assert np.linalg.norm(about_overlap[:3, 3]) > 1.0     # the frame's origin moves a metre
-    assert abs(overlap_moved(about_overlap, np.eye(4), points) - 0.5 * 2 * np.sin(np.radians(6.0))) < 1e-9
+    assert abs(moved(about_overlap, np.eye(4), points) - 0.5 * 2 * np.sin(np.radians(6.0))) < 1e-9
 
 
 def test_a_pose_slid_along_the_shelves_is_withheld_with_its_rival_among_the_candidates():
     # 3DMatch studyroom 44 -> 42 (3DLoMatch), normals facing the sensors: the search's pose slides
-    # 1.3 m along the bookshelf at 2 deg. Its next place, refined, puts the overlap 0.6 m from where
+    # 1.3 m along the bookshelf at 2 deg. Its next place, refined, puts the source 0.6 m from where
     # the pose does, with as many agreeing feature matches: a tie gives the pose its lead about one
     # time in three. Before the search's places were rivals, the slid pose was published
     src, tgt, T_gt = load_threedmatch("studyroom", 44, 42)
@@ -90,8 +90,7 @@ def test_a_pose_slid_along_the_shelves_is_withheld_with_its_rival_among_the_cand
     assert not result.accepted and result.verdict.failed == "max_ambiguity", result.reason
     np.testing.assert_array_equal(result.candidates[0].transform, result.transform)
     rival = result.candidates[1].transform
-    overlap = result.final.source
-    assert rotation_error_deg(rival, result.transform) < 10 and overlap_moved(rival, result.transform, overlap) > 0.5
+    assert rotation_error_deg(rival, result.transform) < 10 and moved(rival, result.transform, src) > 0.5
 
 
 def test_a_box_room_turned_by_a_quarter_is_withheld_with_the_truth_among_the_candidates():

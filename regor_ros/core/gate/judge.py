@@ -33,7 +33,7 @@ REVERSE_MAX_TAU = 3.0   # (translation in units of initial.inlier_threshold)
 
 def rival_chances(f: Figures, a):
     """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: not another
-    answer (places.another_answer: it leaves the overlap where the pose put it), failing a
+    answer (places.another_answer: it leaves the source where the pose put it), failing a
     visibility check, or short of what a pose must have to be judged at all (min_inliers,
     min_fitness, min_feature_inliers; the rival's counts are the pose's scaled by its ratios). A
     turn that keeps a tenth of the overlap is no second pose, however few matches the pose has.
@@ -44,7 +44,7 @@ def rival_chances(f: Figures, a):
         return np.expand_dims(value, -1)
 
     with np.errstate(invalid="ignore"):
-        counts = (another_answer(r.overlap_moved_tau, r.distance_deg)
+        counts = (another_answer(r.moved_tau, r.distance_deg)
                   & ~(r.violation > per_pose(a.max_free_space_violation))
                   & ~(r.opposite_sides > per_pose(a.max_opposite_sides))
                   & (r.inlier_ratio * per_pose(f.num_inliers) >= per_pose(a.min_inliers))

@@ -100,11 +100,11 @@ def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple, ce
     return np.array([to_matrix(R, voted_translation(R, *matches, cell)) for R in turned])
 
 
-def overlap_moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
+def moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
     """How far pose ``A`` puts ``points`` (source frame) from where pose ``B`` does: the RMS
     distance, which does not depend on where the source's frame is."""
-    moved = transform_points(A, points) - transform_points(B, points)
-    return float(np.sqrt(np.mean(np.sum(moved ** 2, axis=1))))
+    apart = transform_points(A, points) - transform_points(B, points)
+    return float(np.sqrt(np.mean(np.sum(apart ** 2, axis=1))))
 
 
 def lead_chance(own: int, rival: int) -> float:
@@ -124,7 +124,7 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     the distinct places the search found, best first. Inliers are counted on the same RIVAL_POINTS source keypoints
     (for speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out
     of the height band, is no rival (a road seen upside down)."""
-    overlap_source, final_target, target_normals = overlap
+    _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
     est, gate, tau = config.estimation, config.acceptance, config.initial.inlier_threshold
@@ -153,6 +153,6 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
             worst, opposite = visibility.worst, visibility.opposite_sides
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
-                     overlap_moved(refined.transform, T, overlap_source) / tau))
+                     moved(refined.transform, T, sample) / tau))
         poses.append(refined.transform)
     return RivalFigures.of(rows), np.array(poses).reshape(-1, 4, 4)
