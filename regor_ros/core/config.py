@@ -200,11 +200,12 @@ class AcceptanceConfig:
     max_ambiguity: float = param(0.05, "withhold a pose as ambiguous when the evidence cannot tell it from a rival "
                                   "(the pose turned about the scene's symmetry: a half turn about the overlap's "
                                   "axes, a quarter turn about its surfaces' dominant direction; or one of the "
-                                  "search's best three other places; refined, at another place) that would pass "
-                                  "the visibility checks and the inlier, fitness and feature-match minimums on its "
-                                  "own: when a tie between the two would give the pose its lead in independent "
-                                  "agreeing feature matches with more than this probability (a significance level, "
-                                  "not fitted; 1 = off)", 0.0, 1.0)
+                                  "search's best three other places; refined, and moving the source by 5 tau or "
+                                  "more) that would pass the visibility checks and the inlier, fitness and "
+                                  "feature-match minimums on its own: when a tie between the two would give the "
+                                  "pose its lead in the independent feature matches only one of them explains "
+                                  "with more than this probability (a significance level, not fitted; 1 = off)",
+                                  0.0, 1.0)
     reverse_check: bool = param(False, "also register target to source and accept only if that returns the inverse "
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
                                  "registration per accepted pose; deviation)")
