@@ -140,9 +140,9 @@ CHECKS = (
                         "the pose is wrong")),
     Check("max_ambiguity", lambda f, a: ambiguity(f, a) > a.max_ambiguity,
           lambda f, a: (f"ambiguous: two poses fit. Another pose (the pose turned about the scene's symmetry: "
-                        "a box room's quarter turn, a corridor's half turn; or another place the search found: a "
-                        "room alike, the next bay of a shelf) passes the visibility checks too, and a tie "
-                        f"would give this pose its lead in independent agreeing feature matches with "
+                        "a box room's quarter turn, a corridor's half turn; or another place the search found: "
+                        "the next bay of a shelf) passes the visibility checks too, and a tie would give this "
+                        f"pose its lead in the independent feature matches only one of the two explains with "
                         f"probability {ambiguity(f, a):.2f} (acceptance.max_ambiguity={a.max_ambiguity}); "
                         "the rival is among the candidates")),
     Check("min_weakest_support", lambda f, a: f.weakest_support < a.min_weakest_support,
