@@ -40,7 +40,6 @@ from .figures import RivalFigures
 from .visibility import visibility_figures
 
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
-RIVAL_ITERATIONS = 10
 QUARTER_TURNS_DEG = (90.0, 180.0, 270.0)
 RIVAL_PLACES = 3      # the search's best other places refined as rivals: the runner-ups it ranked
 FACING_DEG = 15.0     # a surface faces the dominant direction when its normal is within this of it
@@ -121,9 +120,11 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
     (source points, target points, which of them agree with ``T``) and ``places`` the poses of
-    the distinct places the search found, best first. Inliers are counted on the same RIVAL_POINTS source keypoints
-    (for speed). Under a gravity prior, a turn that tips the source over, or lifts its sensor out
-    of the height band, is no rival (a road seen upside down)."""
+    the distinct places the search found, best first. Each is refined with the estimator's
+    iterations (estimation.max_iterations: a place that falls back onto the pose must get there),
+    and inliers are counted, on the same RIVAL_POINTS source keypoints (for speed). Under a
+    gravity prior, a turn that tips the source over, or lifts its sensor out of the height band,
+    is no rival (a road seen upside down)."""
     _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
