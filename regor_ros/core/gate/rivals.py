@@ -13,8 +13,9 @@ of rival, each refined like the pose:
 - the best RIVAL_PLACES other places the search itself found (initial.distinct_candidates): the
   runner-up of the search is the pose the features liked next, whatever made it look alike.
 
-A rival counts when it would pass on its own what any pose must (judge.rival_chances: a distinct
-place, the visibility checks, the inlier, fitness and feature-match minimums). How far the pose
+A rival counts when it is another answer (places.another_answer: it moves the source by the
+search's distinct-place distance) and would pass on its own what any pose must (judge.rival_chances:
+the visibility checks, the inlier, fitness and feature-match minimums). How far the pose
 leads it is judged in independent units, not by a fitted ratio: the feature matches that agree with
 one of the two and not the other, one per descriptor radius (evidence.independent); a match both
 agree with says nothing about which is right (a rival a few degrees off shares most of them: the
