@@ -21,8 +21,7 @@ from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
 from .geometry import transform_points
 from .gravity import GravityPrior
 from .matching import FeatureMatches
-from .metrics import rotation_error_deg, translation_error
-from .places import distinct
+from .places import DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION
 
 DEDUPE_ANGLE_DEG = 1.0
 DEDUPE_TRANSLATION_FRACTION = 0.2  # of the inlier threshold
@@ -232,9 +231,9 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
 
 
 def same_place(A: np.ndarray, B: np.ndarray, inlier_threshold: float) -> bool:
-    """Whether two poses are one place of the search (places.distinct, translation in units of
-    ``inlier_threshold``)."""
-    return not distinct(rotation_error_deg(A, B), translation_error(A, B) / inlier_threshold)
+    """Whether two poses are one place of the search: within DISTINCT_ANGLE_DEG and
+    DISTINCT_TRANSLATION_FRACTION x tau of each other."""
+    return poses_close(A, B, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
 
 
 def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:

@@ -17,12 +17,6 @@ DISTINCT_ANGLE_DEG = 10.0
 DISTINCT_TRANSLATION_FRACTION = 5.0  # of the inlier threshold
 
 
-def distinct(angle_deg, offset_tau):
-    """Whether poses ``angle_deg`` apart in rotation and ``offset_tau`` inlier thresholds apart in
-    translation are two places of the search."""
-    return angle_deg >= DISTINCT_ANGLE_DEG or offset_tau >= DISTINCT_TRANSLATION_FRACTION
-
-
 def another_answer(moved_tau, angle_deg):
     """Whether rivals that move the source by ``moved_tau`` inlier thresholds (RMS over its
     points) from where the pose puts it are other answers than the pose (arrays broadcast). A
