@@ -771,6 +771,38 @@ def grid_table(keys):
     return table
 
 
+@njit(parallel=True, **JIT)
+def pooled_counts(at, keys, offsets):
+    """For each of ``at`` (non-negative bin keys), how many of ``keys`` fall in a bin at one of
+    ``offsets`` from it: a count pooled over a bin's neighbours, in one pass over a hashed table
+    of the bins' counts instead of a sort and a search per neighbour."""
+    size = 1
+    while size < 2 * len(keys):
+        size *= 2
+    mask = np.int64(size - 1)
+    table = np.full(size, _GRID_EMPTY, np.int64)
+    counts = np.zeros(size, np.int64)
+    for p in range(len(keys)):
+        s = _slot(keys[p], mask)
+        while table[s] != _GRID_EMPTY and table[s] != keys[p]:
+            s = (s + 1) & mask
+        table[s] = keys[p]
+        counts[s] += 1
+    pooled = np.zeros(len(at), np.int64)
+    for q in prange(len(at)):
+        total = 0
+        for o in range(len(offsets)):
+            key = at[q] + offsets[o]
+            s = _slot(key, mask)
+            while table[s] != _GRID_EMPTY:
+                if table[s] == key:
+                    total += counts[s]
+                    break
+                s = (s + 1) & mask
+        pooled[q] = total
+    return pooled
+
+
 @njit(inline="always")
 def _cell_of(key, keys, table, mask):
     s = _slot(key, mask)
@@ -1020,6 +1052,7 @@ def warm_up() -> None:
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
         splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4, 0)
         within_any(points, points[:2], np.ones(2))
+        pooled_counts(np.arange(3, dtype=np.int64), np.arange(4, dtype=np.int64), np.arange(2, dtype=np.int64))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid_nearest(points, np.zeros(3), 0.1, 0.1, keys, grid_table(keys), np.array([0, 2], np.int64),
                      np.arange(2, dtype=np.int64), points[:2].copy())

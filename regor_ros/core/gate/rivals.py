@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import agreeing, point_refine
@@ -42,6 +43,7 @@ from .visibility import visibility_figures
 
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
 QUARTER_TURNS_DEG = (90.0, 180.0, 270.0)
+CHANCE_PAIRINGS = 4   # random pairings of the matches that give a vote's background
 RIVAL_PLACES = 3      # the search's best other places refined as rivals: the runner-ups it ranked
 FACING_DEG = 15.0     # a surface faces the dominant direction when its normal is within this of it
 FACING_ROUNDS = 5     # re-estimates of the dominant direction from the normals facing it
@@ -71,11 +73,16 @@ def dominant_direction(normals: np.ndarray) -> np.ndarray:
 
 
 def voted_translation(rotation: np.ndarray, source: np.ndarray, target: np.ndarray, cell: float) -> np.ndarray:
-    """The translation most matches (source[i], target[i]) agree on under ``rotation``: each
-    match's translation binned at ``cell``, the bin with most votes in it and its 26 neighbours,
-    the median of those votes."""
-    votes = target - source @ rotation.T
-    keys = np.floor(votes / cell).astype(np.int64)
+    """The translation the matches (source[i], target[i]) agree on under ``rotation`` beyond
+    chance: each match's translation binned at ``cell`` and pooled with its 26 neighbours; the bin
+    whose votes most exceed what the same points paired at random cast there (CHANCE_PAIRINGS
+    shuffles: the votes' background, densest where the clouds' centres line up, where it outvotes
+    a small overlap's matches); the median of its votes."""
+    turned = source @ rotation.T
+    votes = target - turned
+    shuffles = np.random.default_rng(0).permuted(np.tile(np.arange(len(target)), (CHANCE_PAIRINGS, 1)), axis=1)
+    background = (target[shuffles] - turned).reshape(-1, 3)
+    keys = np.floor(np.vstack([votes, background]) / cell).astype(np.int64)
     keys -= keys.min(axis=0) - 1          # a free bin on every side, so neighbours do not wrap
     span = keys.max(axis=0) + 2
 
@@ -83,13 +90,23 @@ def voted_translation(rotation: np.ndarray, source: np.ndarray, target: np.ndarr
         return (k[..., 0] * span[1] + k[..., 1]) * span[2] + k[..., 2]
 
     flat = linear(keys)
-    bins, counts = np.unique(flat, return_counts=True)
+    own, chance = flat[:len(votes)], flat[len(votes):]
     offsets = linear(_NEIGHBOUR_CELLS) - linear(np.zeros(3, dtype=np.int64))
-    around = bins[:, None] + offsets
-    at = np.minimum(np.searchsorted(bins, around), len(bins) - 1)
-    pooled = np.where(bins[at] == around, counts[at], 0).sum(axis=1)
-    best = bins[np.argmax(pooled)]
-    return np.median(votes[np.isin(flat - best, offsets)], axis=0)
+    counted = kernels.pooled_counts(own, own, offsets)
+    # a bin the shuffles left empty may hold one vote of chance: no bin wins on an empty background
+    expected = (kernels.pooled_counts(own, chance, offsets) + 1) / CHANCE_PAIRINGS
+    best = own[np.argmax(excess(counted, expected))]
+    return np.median(votes[np.isin(own - best, offsets)], axis=0)
+
+
+def excess(counted: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """How far each count exceeds its Poisson mean ``expected`` (> 0): the likelihood ratio's
+    statistic, 2 (k ln(k / mean) - (k - mean)), negative below the mean. It ranks as the tail's
+    probability does without its underflow (a map's peaks are 10^-300 unlikely)."""
+    k = counted.astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        statistic = 2.0 * (np.where(k > 0, k * np.log(k / expected), 0.0) - (k - expected))
+    return np.where(k >= expected, statistic, -statistic)
 
 
 def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple, cell: float) -> np.ndarray:
