@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
 from regor_ros.core.gate.judge import judge, rival_chances
 from regor_ros.core.gate.rivals import dominant_direction, lead_chance, moved, voted_translation
+from regor_ros.core.kernels import pooled_counts
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 
 
@@ -20,6 +21,25 @@ def test_the_translation_most_matches_vote_for_is_found_among_many_wrong_matches
     source = np.vstack([right, wrong[:, 0]])
     target = np.vstack([right @ rotation.T + truth + rng.normal(0, 0.01, right.shape), wrong[:, 1]])
     assert np.linalg.norm(voted_translation(rotation, source, target, 0.1) - truth) < 0.03
+
+
+def test_a_small_overlaps_translation_is_found_where_chance_votes_most_for_another():
+    # the target's room sits where the source's does, so matches paired at random vote most for
+    # no move at all; the 20 right ones, at the source's edge, vote for the truth
+    rng = np.random.default_rng(0)
+    rotation = Rotation.from_rotvec([0.0, 0.0, np.pi / 2]).as_matrix()
+    truth = np.array([1.5, 0.3, 0.0])
+    right = rng.uniform(-1, 1, (20, 3)) * [0.2, 1, 1] + [-0.8, 0, 0]
+    source = np.vstack([right, rng.uniform(-1, 1, (10000, 3))])
+    target = np.vstack([right @ rotation.T + truth + rng.normal(0, 0.01, right.shape),
+                        rng.uniform(-1, 1, (10000, 3))])
+    assert np.linalg.norm(voted_translation(rotation, source, target, 0.1) - truth) < 0.05
+
+
+def test_pooled_counts_sum_a_bins_neighbours():
+    keys = np.array([5, 5, 6, 9, 20], dtype=np.int64)
+    offsets = np.array([-1, 0, 1], dtype=np.int64)
+    assert pooled_counts(np.array([5, 8, 20, 0], dtype=np.int64), keys, offsets).tolist() == [3, 1, 1, 0]
 
 
 def test_the_dominant_direction_is_the_floor_not_the_mean_of_the_walls():

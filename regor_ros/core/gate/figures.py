@@ -30,11 +30,12 @@ class RivalFigures:
     distance_deg: np.ndarray    # its rotation from the pose after refinement
     lead_chance: np.ndarray     # chance that a tie gives the pose its lead in independent agreeing matches
     moved_tau: np.ndarray       # how far it moves the source from the pose's place (RMS), in initial.inlier_threshold
+    log10_false_alarms: np.ndarray  # its own agreeing feature matches against chance, as the pose's (evidence.py)
 
     @classmethod
     def of(cls, rows) -> RivalFigures:
         """From (inlier ratio, feature ratio, violation, opposite sides, distance, lead chance,
-        moved) rows, None for a figure not measured (and for a row's missing last figures: a CSV from
+        moved, false alarms) rows, None for a figure not measured (and for a row's missing last figures: a CSV from
         before they were recorded)."""
         width = len(dataclasses.fields(cls))
         table = np.array([[NOT_MEASURED if v is None else float(v) for v in row] + [NOT_MEASURED] * (width - len(row))
@@ -106,7 +107,8 @@ class Figures:
                 value = getattr(self, f.name)
                 out[f.name] = None if isinstance(value, float) and np.isnan(value) else value
         out["rivals"] = ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:{r['violation']}:"
-                                 f"{r['opposite_sides']}:{r['distance_deg']:.1f}:{r['lead_chance']}:{r['moved_tau']:.1f}"
+                                 f"{r['opposite_sides']}:{r['distance_deg']:.1f}:{r['lead_chance']}:{r['moved_tau']:.1f}:"
+                                 f"{r['log10_false_alarms']}"
                                  for r in self.rivals.rows())
         return out
 

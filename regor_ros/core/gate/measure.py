@@ -16,7 +16,7 @@ from ..estimate import UNCONSTRAINED_VARIANCE, PointRefinement
 from ..gravity import GravityPrior, inside_band
 from ..metrics import rotation_error_deg, translation_error
 from ..search_region import SearchRegion
-from .evidence import Evidence, evidence
+from .evidence import Evidence, evidence, log10_false_alarms
 from .figures import Figures
 from .judge import MEASURABLE, passes, rival_chances
 from .rivals import rivals
@@ -69,7 +69,9 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     rival_poses = np.zeros((0, 4, 4))
     if passes(figures, config.acceptance, MEASURABLE):
-        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, prior)
+        def against_chance(agreeing: int) -> float:
+            return log10_false_alarms(agreeing, support.independent_matches, support.chance, hypotheses)
+        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, prior, against_chance)
         figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
     bound = np.log10(config.acceptance.max_false_alarms)

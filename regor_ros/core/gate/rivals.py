@@ -134,7 +134,7 @@ def lead_chance(own: int, rival: int) -> float:
 
 def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
            source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-           prior: GravityPrior | None = None) -> tuple[RivalFigures, np.ndarray]:
+           prior: GravityPrior | None = None, against_chance=None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
     (source points, target points, which of them agree with ``T``) and ``places`` the poses of
@@ -142,7 +142,8 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     iterations (estimation.max_iterations: a place that falls back onto the pose must get there),
     and inliers are counted, on the same RIVAL_POINTS source keypoints (for speed). Under a
     gravity prior, a turn that tips the source over, or lifts its sensor out of the height band,
-    is no rival (a road seen upside down)."""
+    is no rival (a road seen upside down). ``against_chance`` gives log10 of the false alarms of a
+    count of independent agreeing matches, as the pose's evidence counts them (None: not measured)."""
     _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
@@ -170,8 +171,11 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
         if chance > gate.max_ambiguity:
             visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
             worst, opposite = visibility.worst, visibility.opposite_sides
+        false_alarms = None
+        if against_chance is not None:
+            false_alarms = against_chance(len(independent(pairs[0][agree], radius)))
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
-                     moved(refined.transform, T, sample) / tau))
+                     moved(refined.transform, T, sample) / tau, false_alarms))
         poses.append(refined.transform)
     return RivalFigures.of(rows), np.array(poses).reshape(-1, 4, 4)
