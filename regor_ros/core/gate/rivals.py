@@ -7,9 +7,10 @@ of rival, each refined like the pose:
 - the pose turned by a quarter, a half and three quarters about the direction most of the
   overlap's surfaces face (a floor, a wall): a box room repeats at quarter turns about it, about
   an axis that need not pass near the overlap (measured on the studyroom's turns: 1-2.5 deg from
-  the true turn's axis, 0.4-1.9 m from the overlap's centre). Its translation is the one most
-  feature matches vote for under the turned rotation: at a symmetric place the matches that
-  found the pose point to its twin as well;
+  the true turn's axis, 0.4-1.9 m from the overlap's centre). Its translation is where the
+  feature matches vote beyond chance under the turned rotation: at a symmetric place the matches
+  that found the pose point to its twin as well, and the votes of unrelated matches, densest
+  where the two clouds' middles meet, are counted out (they outvote a small overlap's few);
 - the best RIVAL_PLACES other places the search itself found (initial.distinct_candidates): the
   runner-up of the search is the pose the features liked next, whatever made it look alike.
 
@@ -93,9 +94,20 @@ def voted_translation(rotation: np.ndarray, source: np.ndarray, target: np.ndarr
     own, chance = flat[:len(votes)], flat[len(votes):]
     offsets = linear(_NEIGHBOUR_CELLS) - linear(np.zeros(3, dtype=np.int64))
     counted = kernels.pooled_counts(own, own, offsets)
-    # a bin the shuffles left empty may hold one vote of chance: no bin wins on an empty background
-    expected = (kernels.pooled_counts(own, chance, offsets) + 1) / CHANCE_PAIRINGS
-    best = own[np.argmax(excess(counted, expected))]
+
+    def expected(count_of_chance):
+        # a bin the shuffles left empty may hold one vote of chance: no bin wins on an empty background
+        return (count_of_chance + 1) / CHANCE_PAIRINGS
+
+    # the bin with most votes sets the bar: a bin whose votes would not pass it even on the
+    # emptiest background is not looked up in the background (the same winner, for less)
+    most = np.argmax(counted)
+    bar = excess(counted[most], expected(np.isin(chance - own[most], offsets).sum()))
+    scores = np.full(len(own), -np.inf)
+    contenders = excess(counted, expected(0)) >= bar
+    scores[contenders] = excess(counted[contenders],
+                                expected(kernels.pooled_counts(own[contenders], chance, offsets)))
+    best = own[np.argmax(scores)]
     return np.median(votes[np.isin(own - best, offsets)], axis=0)
 
 
