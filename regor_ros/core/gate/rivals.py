@@ -178,14 +178,14 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
         chance = lead_chance(len(independent(pairs[0][agree_with_T & ~agree], radius)),
                              len(independent(pairs[0][agree & ~agree_with_T], radius)))
         # free space is what costs (a map seen from the rival's place); a rival the pose clearly
-        # leads makes nothing ambiguous whatever it shows, so it is not measured
-        worst = opposite = None
+        # leads makes nothing ambiguous whatever it shows, so it is not measured, nor its own
+        # matches against chance
+        worst = opposite = false_alarms = None
         if chance > gate.max_ambiguity:
             visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
             worst, opposite = visibility.worst, visibility.opposite_sides
-        false_alarms = None
-        if against_chance is not None:
-            false_alarms = against_chance(len(independent(pairs[0][agree], radius)))
+            if against_chance is not None:
+                false_alarms = against_chance(len(independent(pairs[0][agree], radius)))
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
                      moved(refined.transform, T, sample) / tau, false_alarms))
