@@ -30,7 +30,7 @@ class RivalFigures:
     distance_deg: np.ndarray    # its rotation from the pose after refinement
     lead_chance: np.ndarray     # chance that a tie gives the pose its lead in independent agreeing matches
     moved_tau: np.ndarray       # how far it moves the source from the pose's place (RMS), in initial.inlier_threshold
-    log10_false_alarms: np.ndarray  # its own agreeing matches against chance, as the pose's (measured with its free space)
+    log10_false_alarms: np.ndarray  # its own agreeing matches against chance (measured with its free space)
 
     @classmethod
     def of(cls, rows) -> RivalFigures:
