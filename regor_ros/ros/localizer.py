@@ -251,8 +251,9 @@ class Localizer:
             return loaded.prepared, loaded.info
 
         prepared = self._use_map(load, key, settings.map_frame, (path, trajectory))
-        if prepared is not None and self.active:  # for RViz: the map as the node uses it
-            self._on_map(prepared, settings.map_frame)
+        with self.lock:  # for RViz: the map as the node uses it (not while its publishers go away)
+            if prepared is not None and self.active and not self._stopping:
+                self._on_map(prepared, settings.map_frame)
 
     def _use_map(self, prepare, key: MapKey, frame: str, file: tuple[str, str] | None = None) -> PreparedCloud | None:
         """Run ``prepare`` (-> prepared map, info) and make its map the one registered against; a
@@ -425,5 +426,8 @@ class Localizer:
             # the robot's pose, for Nav2: the sensor's composed with its mounting
             pose = (PublishedPose(result.transform, result.covariance) if base is None
                     else PublishedPose(*attached_pose(result.transform, result.covariance, base)))
-        self._on_outcome(Outcome(src, result, target_frame, status, pose, base, answer))
+        with self.lock:  # stop() takes the lock before the node's publishers go away
+            if self._stopping:
+                return Answer(src.serial, False, "node stopping")
+            self._on_outcome(Outcome(src, result, target_frame, status, pose, base, answer))
         return Answer(src.serial, result.accepted, answer)
