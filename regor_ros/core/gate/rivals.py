@@ -123,7 +123,7 @@ def excess(counted: np.ndarray, expected: np.ndarray) -> np.ndarray:
 
 def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple, cell: float) -> np.ndarray:
     """(3, 4, 4): ``T`` turned by QUARTER_TURNS_DEG about the overlap's dominant surface direction,
-    each at the translation the feature matches vote for."""
+    each at the translation the feature matches vote for beyond chance."""
     axis = dominant_direction(overlap_normals)
     turned = Rotation.from_rotvec(np.radians(QUARTER_TURNS_DEG)[:, None] * axis).as_matrix() @ T[:3, :3]
     return np.array([to_matrix(R, voted_translation(R, *matches, cell)) for R in turned])
