@@ -52,7 +52,8 @@ class RegisterNode(LifecycleNode):
     def __init__(self):
         super().__init__("register_node")
         config, settings = declare_parameters(self)
-        self.localizer = Localizer(config, settings, self.get_logger(), self._publish_outcome, self._publish_map)
+        self.localizer = Localizer(config, settings, self.get_logger(), self._while_up(self._publish_outcome),
+                                   self._while_up(self._publish_map))
         self.health = self.localizer.health   # the one Health of the node's life, the localizer's to update
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._entities = []      # (destroy, entity) of what configure created, for cleanup
@@ -234,6 +235,17 @@ class RegisterNode(LifecycleNode):
         return response
 
     # --- outputs ---
+
+    def _while_up(self, publish):
+        """``publish``, dropped when it fails because the context is shut down: SIGINT shuts it down
+        (rclpy's handler) before the node stops its worker, which may be publishing."""
+        def guarded(*args) -> None:
+            try:
+                publish(*args)
+            except Exception:
+                if self.context.ok():
+                    raise
+        return guarded
 
     def _publish_outcome(self, outcome: Outcome) -> None:
         """A registration's status, correspondences and candidates, and its pose when it goes out."""
