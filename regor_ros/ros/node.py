@@ -33,6 +33,7 @@ from .input_qos import InputSubscription, fixed_profile, stream_profile
 from .localizer import Hint, Localizer, Outcome
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
+from .spin import spin
 from .transport import use_large_data_profile
 
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
@@ -295,7 +296,7 @@ def main(args=None) -> int:
                                "services, as Nav2's lifecycle_manager does")
     executor = MultiThreadedExecutor(num_threads=2)
     try:
-        rclpy.spin(node, executor)
+        spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
