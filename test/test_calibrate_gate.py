@@ -11,13 +11,14 @@ from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples,
 NAN = float("nan")
 
 
-def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None):
-    """A run checked from both sides (``violation`` on each), or from neither (None), that passes
-    the checks that are not fitted (apart from ``opposite`` sides)."""
+def sample(place, correct, features, violation, kind="indoor", rivals=(), opposite=None, target_side=None):
+    """A run checked from both sides (``violation`` on each, or ``target_side`` on the target's), or
+    from neither (None), that passes the checks that are not fitted (apart from ``opposite`` sides)."""
     side = NAN if violation is None else violation
     figures = Figures(num_inliers=500, fitness=0.5, surface_agreement=1.0, log10_false_alarms=-10.0,
                       independent_agreeing=50, feature_inliers=features, free_space_source=side,
-                      free_space_target=side, opposite_sides=NAN if opposite is None else opposite,
+                      free_space_target=side if target_side is None else target_side,
+                      opposite_sides=NAN if opposite is None else opposite,
                       rivals=RivalFigures.of(rivals))
     return Sample(kind, (place,), correct, figures)
 
@@ -28,7 +29,7 @@ def test_fit_publishes_no_wrong_pose_and_keeps_the_correct_ones():
                sample("c", False, 120, 0.0, rivals=((0.95, 0.9, 0.0, 0.0, 180.0, 0.4),)),  # a twin: not fitted
                sample("d", False, 120, 0.0, opposite=0.9)]                      # back to back
     thresholds = fit(samples, "indoor")
-    violation, features, features_partial = thresholds
+    violation, features, features_partial, _ = thresholds
     assert 0.05 <= violation < 0.40 and 20 < features <= 40
     assert score(samples, thresholds) == (2, 2, 0, 6)
     # without viewpoints only features tell: the wrong runs at 80 and 120 must not pass then
@@ -96,6 +97,17 @@ def test_a_csv_without_the_gate_figures_is_refused_in_one_line(tmp_path, capsys)
         main([str(path)])
     assert exit_code.value.code == 2
     assert "no column 'surface_agreement'" in capsys.readouterr().err
+
+
+def test_a_wrong_pose_seen_through_from_both_sides_is_stopped_below_the_one_sided_bound():
+    """Correct poses with 5 % and 4 % in one sensor's free space and none in the other's: the
+    one-sided bound must allow 5 %; the wrong pose's 3 % on each side is then stopped by the
+    bound on what both sides show at once."""
+    samples = [sample("a", True, 60, 0.05, target_side=0.0), sample("b", True, 60, 0.0, target_side=0.04),
+               sample("c", False, 60, 0.03)]
+    violation, _, _, both_sides = fit(samples, "indoor")
+    assert violation >= 0.05 and both_sides < 0.03
+    assert score(samples, fit(samples, "indoor")) == (2, 2, 0, 3)
 
 
 def test_the_alone_fit_does_not_lean_on_free_space():

@@ -55,12 +55,14 @@ def test_a_slide_along_a_corridor_and_another_place_are_not(avia_map):
 def test_a_wrong_indoor_pose_is_not_carried_by_its_surfaces():
     """3DMatch hotel_umd3 33 -> 30 (3DLoMatch): a wrong pose that fails the feature test (10^0.2)
     with most of its few cells on the other fragment's surfaces; indoor decoys do as well. (Before
-    each cell was judged by one keypoint, more cells could agree than there were, and it passed.)"""
+    each cell was judged by one keypoint, more cells could agree than there were, and it passed.)
+    Both sensors see through its surfaces (5 % and 3 %), which withholds it too; that check is
+    lifted so that nothing but the tests against chance does, and the surfaces are measured."""
     require_shared_data("the surface evidence tests")
     folder = DATA / "threedmatch"
     scene = next(p.name for p in folder.iterdir() if p.name.startswith("sun3d-hotel_umd"))
     source, target = np.load(folder / scene / "33.npy"), np.load(folder / scene / "30.npy")
-    result = register(source, target, RegorConfig.preset("indoor"))
+    result = register(source, target, RegorConfig.preset("indoor").replace({"max_free_space_both_sides": 1.0}))
     assert not result.accepted and result.verdict.failed == "max_false_alarms", result.reason
     figures = result.figures
     assert figures.surface_cells_agreeing <= figures.surface_cells and figures.surface_chance <= 1

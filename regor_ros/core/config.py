@@ -170,6 +170,14 @@ class AcceptanceConfig:
                                              "cloud's sensor saw through, or, for a map, in front of the map's "
                                              "surfaces seen from the pose (free-space check; 1 = off; "
                                              "calibrated: regor-calibrate-gate)", 0.0, 1.0)
+    max_free_space_both_sides: float = param(0.02, "largest fraction of keypoints in the other sensor's seen free "
+                                                   "space that both sides may show at once: a correct pose's "
+                                                   "conflicts are one sensor's artefacts (a fused fragment's other "
+                                                   "views, a passer-by) and leave the other side clear, while "
+                                                   "surfaces that pass through each other are seen through from "
+                                                   "both (a box room's quarter turn: 3-6 % on each side); needs "
+                                                   "both viewpoints (1 = off; calibrated: regor-calibrate-gate)",
+                                             0.0, 1.0)
     free_space_margin: float = param(0.15, "a keypoint is in seen free space only when nearer than the seen surface "
                                            "by more "
                                       "than this plus free_space_margin_ratio x its range (presets: 3 voxels) "

@@ -2,9 +2,10 @@
 
 Reads the per-registration CSVs that ``regor-bench`` writes (pairs with ground truth, and the
 ``--mismatched`` cross-place runs, where every pose is wrong), with the gate's figures recorded
-whatever the verdict. Three thresholds are fitted for each kind (preset), since each kind is a
-different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation`` and
-``acceptance.min_feature_inliers`` on the runs whose free space was checked from both sides, then
+whatever the verdict. Four thresholds are fitted for each kind (preset), since each kind is a
+different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``,
+``acceptance.max_free_space_both_sides`` and ``acceptance.min_feature_inliers`` on the runs whose
+free space was checked from both sides, then
 ``acceptance.min_feature_inliers_partial`` for a pose whose free space was not (a viewpoint
 unknown, as for a map): on the runs that had no full check, and on every run again with its
 viewpoints dropped, the target's or both (the run's figures without those sides; its rivals keep
@@ -17,7 +18,7 @@ a-contrario bound of 1), the opposite-sides check (``acceptance.max_opposite_sid
 rule) and the rivals' test (``acceptance.max_ambiguity``, a significance level).
 
 The rule: no wrong pose published, then as many correct ones as possible; among equally good
-choices the strictest (the lowest free-space threshold, the highest feature counts): every tied
+choices the strictest (the lowest free-space thresholds, the highest feature counts): every tied
 choice publishes the same correct poses where it was fitted, and a wrong pose published costs
 more than a correct one withheld, so the room left is left to the wrong side that the fit did
 not see. Then each threshold is taken at its strictest among that fit and the
@@ -49,6 +50,7 @@ from ..core import Figures, RegorConfig, passes, stack
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
+BOTH_SIDES_GRID = np.round(np.arange(0.005, 0.051, 0.005), 3)
 FEATURE_GRID = np.arange(0, 151, 5)
 FEATURE_AXIS = FEATURE_GRID[:, None]  # every feature threshold at once, on an axis before the runs'
 
@@ -123,10 +125,11 @@ def load_samples(paths: list[Path], method: str) -> list[Sample]:
     return samples
 
 
-Thresholds = tuple[float, int, int]  # violation, min features, min features (partial)
-THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "min_feature_inliers_partial")
+Thresholds = tuple[float, int, int, float]  # violation, min features, min features (partial), both sides
+THRESHOLD_NAMES = ("max_free_space_violation", "min_feature_inliers", "min_feature_inliers_partial",
+                   "max_free_space_both_sides")
 # the fitted thresholds where they stop nothing: what the checks that are not fitted publish alone
-LENIENT = dict(zip(THRESHOLD_NAMES, (1.0, 0, 0), strict=True))
+LENIENT = dict(zip(THRESHOLD_NAMES, (1.0, 0, 0, 1.0), strict=True))
 
 
 class Runs:
@@ -167,7 +170,8 @@ def score(samples: list[Sample], thresholds: Thresholds):
 
 def preset_thresholds(kind: str) -> Thresholds:
     gate = RegorConfig.preset(kind).acceptance
-    return gate.max_free_space_violation, gate.min_feature_inliers, gate.min_feature_inliers_partial
+    return (gate.max_free_space_violation, gate.min_feature_inliers, gate.min_feature_inliers_partial,
+            gate.max_free_space_both_sides)
 
 
 def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:
@@ -185,14 +189,14 @@ def fit(samples: list[Sample], kind: str) -> Thresholds:
     the runs checked from both sides, then the partial feature threshold on the others and on
     every run with its viewpoints dropped."""
     full, partial = checked_runs(samples)
-    violation, min_features = _fit_full(full, kind)
+    violation, min_features, both = _fit_full(full, kind)
     if all(s.correct for s in partial):
-        return violation, min_features, max(min_features, preset_thresholds(kind)[2])
-    right, wrong = Runs(partial).counts((violation, min_features, FEATURE_AXIS))
+        return violation, min_features, max(min_features, preset_thresholds(kind)[2]), both
+    right, wrong = Runs(partial).counts((violation, min_features, FEATURE_AXIS, both))
     safe = (FEATURE_GRID >= min_features) & (wrong == 0)
     if not safe.any():
-        return violation, min_features, int(FEATURE_GRID[-1])
-    return violation, min_features, strictest_features(safe, right)
+        return violation, min_features, int(FEATURE_GRID[-1]), both
+    return violation, min_features, strictest_features(safe, right), both
 
 
 def strictest_features(safe: np.ndarray, right: np.ndarray) -> int:
@@ -211,15 +215,15 @@ def stable_fit(samples: list[Sample], kind: str, fitter=fit) -> Thresholds:
     nothing to fit on without it, and no vote."""
     rests = [[s for s in samples if not s.involves(family)] for family in families(samples)]
     fits = [fitter(samples, kind)] + [fitter(rest, kind) for rest in rests if not all(s.correct for s in rest)]
-    violation, min_features, min_partial = zip(*fits, strict=True)
-    return min(violation), max(min_features), max(min_partial)
+    violation, min_features, min_partial, both = zip(*fits, strict=True)
+    return min(violation), max(min_features), max(min_partial), min(both)
 
 
 def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
     """The feature thresholds fitted so that each alone stops every wrong pose the unfitted checks
     let through (no help from free space, which keeps the preset's value): a fit that cannot
     lean on a second fitted threshold. Reported beside the joint fit."""
-    violation = preset_thresholds(kind)[0]
+    violation, both = preset_thresholds(kind)[0], preset_thresholds(kind)[3]
 
     def above(runs: list[Sample]) -> int:
         wrong = [s.feature_inliers for s in runs if not s.correct and s.passes_unfitted]
@@ -227,27 +231,30 @@ def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
 
     full, partial = checked_runs(samples)
     min_features = above(full)
-    return violation, min_features, max(min_features, above(partial))
+    return violation, min_features, max(min_features, above(partial)), both
 
 
 def _fit_full(samples: list[Sample], kind: str):
-    """(max_free_space_violation, min_feature_inliers) for runs checked from both sides; the
-    preset's own values when no sample is wrong (nothing to fit on)."""
+    """(max_free_space_violation, min_feature_inliers, max_free_space_both_sides) for runs checked
+    from both sides; the preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
-        return preset_thresholds(kind)[:2]
+        preset = preset_thresholds(kind)
+        return preset[0], preset[1], preset[3]
     runs, best_count, best = Runs(samples), -1, None
-    for v in VIOLATION_GRID:          # ascending: the first of tied settings is the strictest
-        right, wrong = runs.counts((v, FEATURE_AXIS, FEATURE_AXIS))
-        safe = wrong == 0
-        if not safe.any():
-            continue
-        count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
-        if count > best_count:
-            best_count, best = count, (float(v), safe, right)
+    # ascending, the one-sided bound first: the first of tied settings is the strictest
+    for v in VIOLATION_GRID:
+        for both in np.append(BOTH_SIDES_GRID[BOTH_SIDES_GRID < v], v):   # at v it stops nothing
+            right, wrong = runs.counts((v, FEATURE_AXIS, FEATURE_AXIS, both))
+            safe = wrong == 0
+            if not safe.any():
+                continue
+            count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
+            if count > best_count:
+                best_count, best = count, (float(v), float(both), safe, right)
     if best is None:   # nothing is safe: publish nothing
-        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1])
-    v, safe, right = best
-    return v, strictest_features(safe, right)
+        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1]), float(BOTH_SIDES_GRID[0])
+    v, both, safe, right = best
+    return v, strictest_features(safe, right), both
 
 
 def families(samples: list[Sample]) -> list[str]:
@@ -260,8 +267,8 @@ def families(samples: list[Sample]) -> list[str]:
 
 
 def _row(name: str, thresholds: Thresholds, figures) -> str:
-    v, f, p = thresholds
-    return (f"| {name} | {v:.2f} | {f} | {p} | "
+    v, f, p, b = thresholds
+    return (f"| {name} | {v:.2f} | {f} | {p} | {b:.3f} | "
             + " | ".join(map(str, (figures[3], figures[0], figures[1], figures[2]))) + " |")
 
 
@@ -363,7 +370,7 @@ def report(samples: list[Sample]) -> str:
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
         table = [f"### {kind}", "", f"| held out | {' | '.join(THRESHOLD_NAMES)} | held-out runs | correct | "
-                 "published correct | published WRONG |", "|---|---|---|---|---|---|---|---|"]
+                 "published correct | published WRONG |", "|---|---|---|---|---|---|---|---|---|"]
         blind = ["", f"{kind}, the same held-out runs with viewpoints dropped (the partial threshold applies):", "",
                  "| held out | min_feature_inliers_partial | runs | correct | target's dropped (scan to map): "
                  "published correct / WRONG | both dropped (map to map): published correct / WRONG |",
@@ -376,7 +383,7 @@ def report(samples: list[Sample]) -> str:
             table.append(_row(family, thresholds, figures))
             blind.append(_blind_row(family, thresholds, held))
             blind_totals += [score([s.blinded(k) for s in held], thresholds) for k in (True, False)]
-        table.append(f"| **sum over held-out places** | | | | {totals[3]} | {totals[0]} | {totals[1]} | "
+        table.append(f"| **sum over held-out places** | | | | | {totals[3]} | {totals[0]} | {totals[1]} | "
                      f"{totals[2]} |")
         blind.append(f"| **sum over held-out places** | | {blind_totals[0][3]} | {blind_totals[0][0]} | "
                      f"{blind_totals[0][1]} / {blind_totals[0][2]} | {blind_totals[1][1]} / {blind_totals[1][2]} |")

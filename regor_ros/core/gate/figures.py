@@ -99,6 +99,12 @@ class Figures:
         """The larger free-space fraction (NaN when neither side was measured)."""
         return np.fmax(self.free_space_source, self.free_space_target)
 
+    @property
+    def both_sides_free_space(self):
+        """The smaller free-space fraction: what both sensors saw through (NaN unless both sides
+        were measured)."""
+        return np.minimum(self.free_space_source, self.free_space_target)
+
     def columns(self) -> dict:
         """Each figure as a CSV column (None: not measured); the rivals as regor-bench writes them."""
         out = {}

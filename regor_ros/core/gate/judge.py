@@ -10,7 +10,8 @@ The checks, in the order a reason names the first that fails:
 - beyond chance (not fitted): the overlap on the target's surfaces, and either the feature matches
   (evidence.py) or the surfaces themselves (surface_evidence.py) more than chance gives;
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
-  matches (more when free space was not checked from both sides), free space, opposite sides;
+  matches (more when free space was not checked from both sides), free space (each side, and
+  both at once), opposite sides;
 - unique (not fitted): no rival (a symmetric twin, another place the search found) that the
   evidence cannot tell from the pose (rivals.py);
 - pinned (a unit, not fitted): at least one independent neighbourhood of surface faces every
@@ -134,6 +135,12 @@ CHECKS = (
           lambda f, a: (f"{100 * f.worst_free_space:.0f} % of one cloud lies in space the other sensor saw "
                         f"through (acceptance.max_free_space_violation={a.max_free_space_violation}): "
                         "surfaces pass through each other, the pose is wrong")),
+    Check("max_free_space_both_sides", lambda f, a: f.both_sides_free_space > a.max_free_space_both_sides,
+          lambda f, a: (f"both sensors saw through the other cloud's surfaces ({100 * f.free_space_source:.1f} % "
+                        f"and {100 * f.free_space_target:.1f} % of the keypoints, "
+                        f"acceptance.max_free_space_both_sides={a.max_free_space_both_sides}): a correct pose's "
+                        "conflicts are one sensor's artefacts, surfaces that pass through each other show from "
+                        "both sides; the pose is wrong")),
     Check("max_opposite_sides", lambda f, a: f.opposite_sides > a.max_opposite_sides,
           lambda f, a: (f"{100 * f.opposite_sides:.0f} % of the shared surface was seen from opposite sides "
                         f"(acceptance.max_opposite_sides={a.max_opposite_sides}): the clouds are back to back, "
