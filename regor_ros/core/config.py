@@ -92,8 +92,9 @@ class InitialConfig:
                                      "clouds); 0 = all", 0, 1000000)
     fs_tcd_rows: int = param(256, "rows scored for FS-TCD's max-degree (half lowest residual, half random); 0 = all "
                                   "(deviation)", 0, 100000)
-    free_space_selection: bool = param(False, "FS-TCD picks the fittest hypothesis that passes the free-space check "
-                                        "(acceptance.max_free_space_violation), not the fittest of all (deviation)")
+    free_space_selection: bool = param(False, "FS-TCD picks the fittest hypothesis that passes the free-space "
+                                        "checks (acceptance.max_free_space_violation, _both_sides), not the "
+                                        "fittest of all (deviation)")
     reproduce_fs_tcd_quirk: bool = param(False, "reproduce the authors' argument overwrite in FS-TCD (refine on the "
                                                 "previous hypothesis's matches)")
 
@@ -136,10 +137,10 @@ class EstimationConfig:
                                     "kept when it puts at least as many keypoints within a voxel of the target "
                                     "(sparse scans' point-level poses stay decimetres off; deviation)")
     visible_candidates: int = param(0, "when the pose puts one cloud into space the other sensor saw through "
-                                       "(acceptance.max_free_space_violation), refine up to this many other "
-                                       "places the search found and take the one that does not, with the most "
-                                       "inliers; the gate then judges it as any pose (0 = off; outdoors 8: sparse "
-                                       "scans against a map, 12 -> 18 of 41 published; deviation)", 0, 100)
+                                       "(acceptance.max_free_space_violation, _both_sides), refine up to this "
+                                       "many other places the search found and take the one that does not, with "
+                                       "the most inliers; the gate then judges it as any pose (0 = off; outdoors 8: "
+                                       "sparse scans against a map, 12 -> 18 of 41 published; deviation)", 0, 100)
 
 
 @dataclass

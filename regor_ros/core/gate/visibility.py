@@ -161,7 +161,10 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def free_space_plausible(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                          gate: AcceptanceConfig) -> bool:
-    """Whether the pose passes the free-space check (initial.free_space_selection: FS-TCD's winner
-    is the fittest hypothesis this holds for)."""
-    worst = visibility_figures(T, source, target, gate).worst
-    return worst is None or worst <= gate.max_free_space_violation
+    """Whether the pose passes the free-space checks, each side's and both at once
+    (initial.free_space_selection: FS-TCD's winner is the fittest hypothesis this holds for)."""
+    figures = visibility_figures(T, source, target, gate)
+    if figures.worst is not None and figures.worst > gate.max_free_space_violation:
+        return False
+    return not (figures.both_sides
+                and min(figures.source_violation, figures.target_violation) > gate.max_free_space_both_sides)
