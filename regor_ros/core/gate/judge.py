@@ -167,6 +167,7 @@ CHECKS = (
                         "scene (acceptance.reverse_check)")),
 )
 MEASURABLE = CHECKS[:5]  # the checks before which a pose's rivals are not worth refining
+FREE_SPACE_CHECKS = tuple(check for check in CHECKS if check.name.startswith("max_free_space"))
 PASSED = len(CHECKS)
 
 

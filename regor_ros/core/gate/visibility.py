@@ -24,6 +24,8 @@ from ..cloud import PreparedCloud
 from ..config import AcceptanceConfig
 from ..geometry import transform_points
 from ..range_image import MIN_RANGE, seen_and_inside
+from .figures import NOT_MEASURED, Figures
+from .judge import FREE_SPACE_CHECKS, passes
 
 GRAZING_COSINE = 0.2  # a surface seen more obliquely than this (78 deg) has no reliable side
 
@@ -161,10 +163,8 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def free_space_plausible(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
                          gate: AcceptanceConfig) -> bool:
-    """Whether the pose passes the free-space checks, each side's and both at once
-    (initial.free_space_selection: FS-TCD's winner is the fittest hypothesis this holds for)."""
-    figures = visibility_figures(T, source, target, gate)
-    if figures.worst is not None and figures.worst > gate.max_free_space_violation:
-        return False
-    return not (figures.both_sides
-                and min(figures.source_violation, figures.target_violation) > gate.max_free_space_both_sides)
+    """Whether the pose passes the gate's free-space checks (judge.FREE_SPACE_CHECKS: each side's,
+    and both at once), read without the pose's uncertainty (initial.free_space_selection: FS-TCD's
+    winner is the fittest hypothesis this holds for; estimation.visible_candidates)."""
+    figures = Figures(*[NOT_MEASURED] * 6, **visibility_figures(T, source, target, gate).as_figures())
+    return bool(passes(figures, gate, FREE_SPACE_CHECKS))
