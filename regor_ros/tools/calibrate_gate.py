@@ -3,9 +3,10 @@
 Reads the per-registration CSVs that ``regor-bench`` writes (pairs with ground truth, and the
 ``--mismatched`` cross-place runs, where every pose is wrong), with the gate's figures recorded
 whatever the verdict. Four thresholds are fitted for each kind (preset), since each kind is a
-different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``,
-``acceptance.max_free_space_both_sides`` and ``acceptance.min_feature_inliers`` on the runs whose
-free space was checked from both sides, then
+different sensor (fused RGB-D fragments, LiDAR scans): ``acceptance.max_free_space_violation``
+and ``acceptance.min_feature_inliers`` on the runs whose free space was checked from both sides,
+then ``acceptance.max_free_space_both_sides`` on the same runs with those two fixed (fitted
+after them, so that they never relax on what it stops: it only withholds more), then
 ``acceptance.min_feature_inliers_partial`` for a pose whose free space was not (a viewpoint
 unknown, as for a map): on the runs that had no full check, and on every run again with its
 viewpoints dropped, the target's or both (the run's figures without those sides; its rivals keep
@@ -50,7 +51,8 @@ from ..core import Figures, RegorConfig, passes, stack
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
-BOTH_SIDES_GRID = np.round(np.arange(0.005, 0.051, 0.005), 3)
+BOTH_SIDES_GRID = np.append(np.round(np.arange(0.005, 0.051, 0.005), 3), 1.0)   # 1: off
+BOTH_SIDES_AXIS = BOTH_SIDES_GRID[:, None]
 FEATURE_GRID = np.arange(0, 151, 5)
 FEATURE_AXIS = FEATURE_GRID[:, None]  # every feature threshold at once, on an axis before the runs'
 
@@ -186,10 +188,11 @@ def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:
 
 def fit(samples: list[Sample], kind: str) -> Thresholds:
     """The thresholds for samples of one kind, by the module's rule: the two of a full check on
-    the runs checked from both sides, then the partial feature threshold on the others and on
-    every run with its viewpoints dropped."""
+    the runs checked from both sides, then the both-sides bound on those runs, then the partial
+    feature threshold on the others and on every run with its viewpoints dropped."""
     full, partial = checked_runs(samples)
-    violation, min_features, both = _fit_full(full, kind)
+    violation, min_features = _fit_full(full, kind)
+    both = _fit_both_sides(full, kind, violation, min_features)
     if all(s.correct for s in partial):
         return violation, min_features, max(min_features, preset_thresholds(kind)[2]), both
     right, wrong = Runs(partial).counts((violation, min_features, FEATURE_AXIS, both))
@@ -235,26 +238,37 @@ def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
 
 
 def _fit_full(samples: list[Sample], kind: str):
-    """(max_free_space_violation, min_feature_inliers, max_free_space_both_sides) for runs checked
-    from both sides; the preset's own values when no sample is wrong (nothing to fit on)."""
+    """(max_free_space_violation, min_feature_inliers) for runs checked from both sides, the
+    both-sides bound off; the preset's own values when no sample is wrong (nothing to fit on)."""
     if all(s.correct for s in samples):
-        preset = preset_thresholds(kind)
-        return preset[0], preset[1], preset[3]
+        return preset_thresholds(kind)[:2]
     runs, best_count, best = Runs(samples), -1, None
-    # ascending, the one-sided bound first: the first of tied settings is the strictest
-    for v in VIOLATION_GRID:
-        for both in np.append(BOTH_SIDES_GRID[BOTH_SIDES_GRID < v], v):   # at v it stops nothing
-            right, wrong = runs.counts((v, FEATURE_AXIS, FEATURE_AXIS, both))
-            safe = wrong == 0
-            if not safe.any():
-                continue
-            count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
-            if count > best_count:
-                best_count, best = count, (float(v), float(both), safe, right)
+    off = LENIENT["max_free_space_both_sides"]
+    for v in VIOLATION_GRID:          # ascending: the first of tied settings is the strictest
+        right, wrong = runs.counts((v, FEATURE_AXIS, FEATURE_AXIS, off))
+        safe = wrong == 0
+        if not safe.any():
+            continue
+        count = right[np.argmax(safe)]   # the lowest safe feature threshold publishes most
+        if count > best_count:
+            best_count, best = count, (float(v), safe, right)
     if best is None:   # nothing is safe: publish nothing
-        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1]), float(BOTH_SIDES_GRID[0])
-    v, both, safe, right = best
-    return v, strictest_features(safe, right), both
+        return float(VIOLATION_GRID[0]), int(FEATURE_GRID[-1])
+    v, safe, right = best
+    return v, strictest_features(safe, right)
+
+
+def _fit_both_sides(samples: list[Sample], kind: str, violation: float, min_features: int) -> float:
+    """max_free_space_both_sides for runs checked from both sides, the other two fixed: the
+    strictest bound that publishes as many correct runs as the best safe one (the preset's own
+    value when there is nothing to fit on)."""
+    if not samples or all(s.correct for s in samples):
+        return preset_thresholds(kind)[3]
+    right, wrong = Runs(samples).counts((violation, min_features, min_features, BOTH_SIDES_AXIS))
+    safe = wrong == 0
+    if not safe.any():
+        return float(BOTH_SIDES_GRID[0])
+    return float(BOTH_SIDES_GRID[safe & (right == right[safe].max())].min())
 
 
 def families(samples: list[Sample]) -> list[str]:
