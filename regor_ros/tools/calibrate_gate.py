@@ -226,7 +226,7 @@ def fit_alone(samples: list[Sample], kind: str) -> Thresholds:
     """The feature thresholds fitted so that each alone stops every wrong pose the unfitted checks
     let through (no help from free space, which keeps the preset's value): a fit that cannot
     lean on a second fitted threshold. Reported beside the joint fit."""
-    violation, both = preset_thresholds(kind)[0], preset_thresholds(kind)[3]
+    violation, _, _, both = preset_thresholds(kind)
 
     def above(runs: list[Sample]) -> int:
         wrong = [s.feature_inliers for s in runs if not s.correct and s.passes_unfitted]
@@ -262,7 +262,7 @@ def _fit_both_sides(samples: list[Sample], kind: str, violation: float, min_feat
     """max_free_space_both_sides for runs checked from both sides, the other two fixed: the
     strictest bound that publishes as many correct runs as the best safe one (the preset's own
     value when there is nothing to fit on)."""
-    if not samples or all(s.correct for s in samples):
+    if all(s.correct for s in samples):
         return preset_thresholds(kind)[3]
     right, wrong = Runs(samples).counts((violation, min_features, min_features, BOTH_SIDES_AXIS))
     safe = wrong == 0
