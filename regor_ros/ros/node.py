@@ -18,7 +18,7 @@ from nav_msgs.srv import LoadMap
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from sensor_msgs.msg import Imu, PointCloud2
 from std_msgs.msg import Header, String
@@ -33,7 +33,7 @@ from .input_qos import InputSubscription, fixed_profile, stream_profile
 from .localizer import Hint, Localizer, Outcome
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
-from .spin import spin
+from .spin import PoolExecutor, spin
 from .transport import use_large_data_profile
 
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
@@ -294,7 +294,7 @@ def main(args=None) -> int:
     else:
         node.get_logger().info("waiting to be configured (autostart:=false): drive it with its lifecycle "
                                "services, as Nav2's lifecycle_manager does")
-    executor = MultiThreadedExecutor(num_threads=2)
+    executor = PoolExecutor(threads=2)
     try:
         spin(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
