@@ -5,6 +5,7 @@ spin on a task waiting for a pool thread."""
 import threading
 import time
 
+import pytest
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import SingleThreadedExecutor
@@ -123,3 +124,26 @@ def test_a_task_waiting_for_a_pool_thread_is_waited_for_not_spun_on():
         rclpy.try_shutdown(context=context)
     # each pass waits up to PENDING_WAIT_S for the waiting task: a slow machine makes fewer passes
     assert passes <= held / PENDING_WAIT_S + 10, (passes, held)
+
+
+def test_a_callback_exception_ends_the_spin_as_rclpys_executors_do():
+    """rclpy's task keeps its callback's exception; the executor raises it from spin_once, so a
+    broken callback stops the node loudly instead of failing silently on every call."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("regor_pool_raise_test", context=context)
+
+    def broken():
+        raise RuntimeError("broken callback")
+
+    node.create_timer(0.001, broken)
+    executor = PoolExecutor(1, context=context)
+    executor.add_node(node)
+    try:
+        with pytest.raises(RuntimeError, match="broken callback"):
+            for _ in range(1000):
+                executor.spin_once(timeout_sec=1.0)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
