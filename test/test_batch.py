@@ -1,6 +1,7 @@
 """regor-batch on a real Dask cluster on loopback: rows as register() gives them, bad rows, a
 resumed batch, a worker killed mid-batch; and the pair list and the dispatcher on their own."""
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -120,8 +121,6 @@ def test_a_rerun_resumes_and_skips_the_rows_already_written(first_run, serial, s
 
 
 def test_a_worker_killed_mid_batch_loses_and_duplicates_no_row(scans, serial, tmp_path):
-    import logging
-
     from distributed import Client, LocalCluster
     numba_threads = os.environ.get("NUMBA_NUM_THREADS")
     with plain_worker_environment():  # an existing cluster, set up as regor-batch's own
@@ -199,3 +198,28 @@ def test_the_dispatcher_sends_a_worker_the_pairs_sharing_its_clouds(tmp_path):
     assert dispatcher.next_for("w1").id == "c"  # shares t1 with a
     assert dispatcher.next_for("w2").id == "d"  # shares s2 with b
     assert dispatcher.next_for("w1").id == "e" and not dispatcher
+
+
+def test_a_closing_worker_s_failed_heartbeat_is_not_logged_a_running_one_s_is(caplog):
+    """Closing the local cluster, a heartbeat in flight meets the worker's own closed connections
+    (dask/distributed#7105): not an error after a finished batch; while running it is one."""
+    from types import SimpleNamespace
+
+    from distributed.core import Status
+
+    from regor_ros.tools.batch_worker import QuietShutdown
+    logger = logging.getLogger("distributed.worker")
+    worker = SimpleNamespace(status=Status.running)
+    before = list(logger.filters)
+    QuietShutdown().setup(worker)
+    try:
+        with caplog.at_level(logging.ERROR, logger="distributed.worker"):
+            logger.error("Failed to communicate with scheduler during heartbeat.")
+            worker.status = Status.closing
+            logger.error("Failed to communicate with scheduler during heartbeat.")
+            logger.error("Unexpected exception during heartbeat. Closing worker.")
+    finally:
+        logger.filters[:] = before
+    assert [(r.getMessage(), r.levelno) for r in caplog.records] == [
+        ("Failed to communicate with scheduler during heartbeat.", logging.ERROR),
+        ("Unexpected exception during heartbeat. Closing worker.", logging.ERROR)]

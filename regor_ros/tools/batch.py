@@ -201,8 +201,11 @@ def open_client(workers: int, scheduler: str | None):
     if scheduler:
         return Client(scheduler, timeout=30)
     with plain_worker_environment():  # a cluster the client makes is closed with it
-        return Client(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+        client = Client(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                        dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+    from .batch_worker import QuietShutdown
+    client.register_plugin(QuietShutdown())
+    return client
 
 
 def plain_worker_environment():
