@@ -4,9 +4,12 @@ from conftest import random_motion
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core.estimate import (
+    cauchy_weights,
+    inliers_at,
     plane_refine,
     plane_thresholds,
     point_refine,
+    point_refine_all,
     pose_covariance,
     post_refine,
     weighted_kabsch,
@@ -193,3 +196,41 @@ def test_attached_pose_moves_with_the_lever_arm():
     assert moved[0, 0] == pytest.approx(0.01 + 0.04)   # the base swings along x when the sensor yaws
     assert moved[1, 1] == pytest.approx(0.01) and moved[5, 5] == pytest.approx(0.04)
     assert moved[0, 5] == pytest.approx(0.04) and np.allclose(moved, moved.T)
+
+
+def _numpy_point_refine(T, source, grid, threshold, iterations):
+    """point_refine as numpy expressions: each step the nearest pairs within the threshold and
+    weighted_kabsch on them, until the count settles (what the compiled step replaced)."""
+    previous, current = -1, inliers_at(T, source, grid, threshold)
+    for _ in range(iterations):
+        if len(current.source_index) == previous or len(current.source_index) < 3:
+            break
+        previous = len(current.source_index)
+        T = weighted_kabsch(source[current.source_index], grid.points[current.target_index],
+                            cauchy_weights(current.distances, threshold))
+        current = inliers_at(T, source, grid, threshold)
+    return current
+
+
+def test_point_refinements_stepped_together_are_each_the_numpy_refinement(kitchen_pair):
+    """A batch of starts (a gate's rivals) refined together: each gives what it gives alone, and
+    what the numpy formulation gives (the same pairs; the pose up to rounding)."""
+    src, tgt, T_gt, _ = kitchen_pair
+    from regor_ros.core import RegorConfig, prepare_cloud
+    cfg = RegorConfig()
+    s, t = prepare_cloud(src, cfg), prepare_cloud(tgt, cfg)
+    rng = np.random.default_rng(7)
+    nudges = [to_matrix(Rotation.from_rotvec(rng.normal(0, np.radians(4), 3)).as_matrix(), rng.normal(0, 0.08, 3))
+              for _ in range(6)]
+    starts = np.array([nudge @ T_gt for nudge in nudges] + [random_motion(99)])   # the last far off: few pairs
+    together = point_refine_all(starts, s.points, t.neighbours, 0.1, 20)
+    for start, refined in zip(starts, together, strict=True):
+        alone = point_refine(start, s.points, t.neighbours, 0.1, 20)
+        expected = _numpy_point_refine(start, s.points, t.neighbours, 0.1, 20)
+        np.testing.assert_array_equal(refined.transform, alone.transform)
+        np.testing.assert_array_equal(refined.source_index, expected.source_index)
+        np.testing.assert_array_equal(refined.target_index, expected.target_index)
+        np.testing.assert_allclose(refined.transform, expected.transform, atol=1e-9)
+        np.testing.assert_allclose(refined.distances, expected.distances, atol=1e-9)
+    assert len({len(r.source_index) for r in together}) > 2   # the starts did not all end alike
+    assert point_refine_all(np.zeros((0, 4, 4)), s.points, t.neighbours, 0.1, 20) == []

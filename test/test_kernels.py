@@ -1,6 +1,7 @@
 """The compiled kernels give exactly the numpy expressions they replaced, on any thread count."""
 import numba
 import numpy as np
+import pytest
 from conftest import load_map_query
 from scipy.spatial.distance import cdist
 
@@ -12,6 +13,14 @@ def _problem(seed=0, n=700):
     src = rng.uniform(-3, 3, size=(n, 3))
     tgt = src + rng.normal(0, 0.05, size=(n, 3))
     return src, tgt
+
+
+def _pair_moments(src, tgt):
+    """A batch of poses' refinement step on the problem's clouds (grid_pairs_moments)."""
+    from regor_ros.core.neighbour_grid import NeighbourGrid
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, :3, 3] = [[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.3, 0.1]]
+    return NeighbourGrid(tgt).pair_moments(poses, src, 0.12)
 
 
 def test_landed_counts_is_the_numpy_expression():
@@ -40,8 +49,9 @@ def test_results_do_not_depend_on_the_thread_count():
         for threads in (1, before):
             numba.set_num_threads(threads)
             soft, hard, tight = kernels.compatibility_matrices(src, tgt, 0.1, np.zeros(len(src)), 0.0, False)
-            results.append((soft, hard, tight, kernels.second_order_top_k(tight, hard, rows, 20),
-                            kernels.triangle_scores(src, tgt, 0.1)))
+            first = kernels.second_order_top_k(tight, hard, rows, 20)
+            results.append((soft, hard, tight, first, kernels.triangle_scores(src, tgt, 0.1),
+                             *kernels.seed_consensus(first, hard, soft, 10, 10), *_pair_moments(src, tgt)))
     finally:
         numba.set_num_threads(before)
     for one, many in zip(*results, strict=True):
@@ -175,3 +185,31 @@ def test_numpy_blas_runs_on_one_thread_during_registrations_and_is_restored():
     assert all(inside[path] == 1 for path in numpy_blas)
     assert all(inside[path] == before[path] for path in before if path not in numpy_blas)  # FAISS's own
     assert _blas_threads() == before
+
+
+def _seed_consensus_numpy(first, hard, soft, k2, iterations):
+    """SC2-PCR++'s second stage and local spectral weights as numpy expressions (what
+    seed_consensus replaced)."""
+    from regor_ros.core.consistency import leading_eigenvector, top_k_stable
+    hard_first = hard[first[:, :, None], first[:, None, :]].astype(np.float32)
+    score = np.einsum("sm,smj->sj", hard_first[:, 0, :], hard_first)
+    second = np.take_along_axis(first, top_k_stable(score, k2), axis=1)
+    local = soft[second[:, :, None], second[:, None, :]].copy()
+    diag = np.arange(k2)
+    local[:, diag, diag] = 0.0
+    return second, leading_eigenvector(local, iterations)
+
+
+@pytest.mark.parametrize("k1, k2, iterations", [(20, 10, 10), (40, 30, 10), (12, 12, 1), (20, 10, 0)])
+def test_seed_consensus_is_the_numpy_expression(k1, k2, iterations):
+    """The members exactly; the weights up to float32 rounding (its sums run in another order),
+    stopped at the same power iteration for the whole batch."""
+    src, tgt = _problem(3)
+    tgt[::3] = np.random.default_rng(4).uniform(-3, 3, size=tgt[::3].shape)   # outliers: sets differ
+    soft, hard, tight = kernels.compatibility_matrices(src, tgt, 0.1, np.zeros(len(src)), 0.0, False)
+    first = kernels.second_order_top_k(tight, hard, np.arange(0, 700, 2), k1)
+    second, weights = kernels.seed_consensus(first, hard, soft, k2, iterations)
+    expected_second, expected_weights = _seed_consensus_numpy(first, hard, soft, k2, iterations)
+    np.testing.assert_array_equal(second, expected_second)
+    np.testing.assert_allclose(weights, expected_weights, rtol=0, atol=1e-6)
+    assert weights.dtype == np.float32

@@ -43,3 +43,5 @@ def test_a_threshold_asked_again_reuses_its_grid_and_an_empty_cloud_finds_nothin
     assert grid._grids[0.2] is built
     distance, index = NeighbourGrid(np.zeros((0, 3))).nearest_within(np.zeros((2, 3)), 0.2)
     assert np.isinf(distance).all() and (index == 0).all()
+    moments = NeighbourGrid(np.zeros((0, 3))).pair_moments(np.tile(np.eye(4), (3, 1, 1)), np.zeros((2, 3)), 0.2)
+    assert moments.distance.shape == (3, 2) and np.isinf(moments.distance).all() and (moments.count == 0).all()

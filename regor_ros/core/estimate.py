@@ -34,17 +34,24 @@ def weighted_kabsch(source: np.ndarray, target: np.ndarray,
     src_c = (w * source).sum(axis=-2, keepdims=True) / wsum
     tgt_c = (w * target).sum(axis=-2, keepdims=True) / wsum
     H = np.swapaxes(w * (source - src_c), -1, -2) @ (target - tgt_c)
-    U, _, Vt = np.linalg.svd(H)
+    return kabsch_from_moments(src_c[..., 0, :], tgt_c[..., 0, :], H, clamp)
+
+
+def kabsch_from_moments(source_centroid: np.ndarray, target_centroid: np.ndarray, cross_covariance: np.ndarray,
+                        clamp: Clamp = None) -> np.ndarray:
+    """The rigid transform(s) of weighted_kabsch from the weighted centroids (..., 3) and the
+    cross-covariance about them (..., 3, 3)."""
+    U, _, Vt = np.linalg.svd(cross_covariance)
     V = np.swapaxes(Vt, -1, -2)
     d = np.where(np.linalg.det(V @ np.swapaxes(U, -1, -2)) < 0, -1.0, 1.0)
-    D = np.zeros(H.shape)
+    D = np.zeros(cross_covariance.shape)
     D[..., 0, 0] = 1.0
     D[..., 1, 1] = 1.0
     D[..., 2, 2] = d
     R = V @ D @ np.swapaxes(U, -1, -2)
     if clamp is not None:
         R = clamp(R)
-    t = tgt_c[..., 0, :] - (R @ src_c[..., 0, :, None])[..., 0]
+    t = target_centroid - (R @ source_centroid[..., None])[..., 0]
     return to_matrix(R, t)
 
 
@@ -89,17 +96,32 @@ def point_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, thres
                  iterations: int, clamp: Clamp = None) -> PointRefinement:
     """The estimator's point-level refinement: every source keypoint against its nearest target
     keypoint, Cauchy-weighted Kabsch on the pairs within ``threshold``, until the count settles."""
-    previous = -1
-    current = inliers_at(T, source, target, threshold)
+    return point_refine_all(T[None], source, target, threshold, iterations, clamp)[0]
+
+
+def point_refine_all(starts: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float,
+                     iterations: int, clamp: Clamp = None) -> list[PointRefinement]:
+    """point_refine of each of ``starts`` (b, 4, 4), the poses still moving stepped together (one
+    compiled pass per step for all of them: a gate's rivals are a dozen short refinements)."""
+    poses = np.array(starts, dtype=np.float64).reshape(-1, 4, 4)
+    moments = list(target.pair_moments(poses, source, threshold))
+    distance, nearest, count = moments[:3]
+    previous = np.full(len(poses), -1)
+    moving = np.ones(len(poses), dtype=bool)
     for _ in range(iterations):
-        count = len(current.source_index)
-        if count == previous or count < 3:
+        moving &= (count != previous) & (count >= 3)
+        if not moving.any():
             break
-        previous = count
-        T = weighted_kabsch(source[current.source_index], target.points[current.target_index],
-                            cauchy_weights(current.distances, threshold), clamp)
-        current = inliers_at(T, source, target, threshold)
-    return current
+        step = np.flatnonzero(moving)
+        previous[step] = count[step]
+        poses[step] = kabsch_from_moments(*(m[step] for m in moments[3:]), clamp)
+        for m, new in zip(moments, target.pair_moments(poses[step], source, threshold), strict=True):
+            m[step] = new
+    refined = []
+    for T, d, j in zip(poses, distance, nearest, strict=True):
+        index = np.flatnonzero(d < threshold)
+        refined.append(PointRefinement(T, index, j[index], d[index]))
+    return refined
 
 
 # a point-to-plane step moves along a direction only as far as the surfaces fix it: damping of

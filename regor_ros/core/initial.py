@@ -67,14 +67,7 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig,
     k1, k2 = (cfg.k1, cfg.k2) if cfg.k1 <= n else (4, 4)
     k1, k2 = min(k1, n), min(k2, n)
     first = second_order_top_k(tight, hard, seeds, k1)                   # C1, best first
-    hard_first = hard[first[:, :, None], first[:, None, :]].astype(np.float32)  # (S, k1, k1)
-    # second stage: agreement with the best member c* of C1, through C1
-    score = np.einsum("sm,smj->sj", hard_first[:, 0, :], hard_first)
-    second = np.take_along_axis(first, top_k_stable(score, k2), axis=1)
-    local = soft[second[:, :, None], second[:, None, :]].copy()          # (S, k2, k2)
-    diag = np.arange(local.shape[1])
-    local[:, diag, diag] = 0.0
-    weights = leading_eigenvector(local, cfg.power_iterations)
+    second, weights = kernels.seed_consensus(first, hard, soft, k2, cfg.power_iterations)
     weights = weights / (weights.sum(axis=1, keepdims=True) + 1e-6)
     return weighted_kabsch(src[second], tgt[second], weights.astype(np.float64))
 

@@ -5,7 +5,8 @@ searched a kd-tree per point holding the GIL.
 
 Each consensus kernel gives exactly what the numpy expression it replaced gave (the tests hold
 them to those expressions): the same float32 rounding of the length residual, integer counts, ties
-broken by index. The feature search gives the similarities of a numpy matrix product; FAISS,
+broken by index; the seeds' local spectral weights and the refinement's moments are the same sums
+in another order (the last bits differ). The feature search gives the similarities of a numpy matrix product; FAISS,
 which it replaced, sums in another order (the last bit may differ). Nothing depends on the
 number of threads. FPFH gives Open3D's histograms (the tests hold it to them) but for the order
 of a sum's terms and which of the neighbours tied at the max_nn-th distance are kept.
@@ -225,6 +226,56 @@ def _top_k_into(values, k, out):
             p -= 1
         best[p], out[p] = v, j
         filled = min(filled + 1, k)
+
+
+@njit(parallel=True, **JIT)
+def seed_consensus(first, hard, soft, k2, iterations):
+    """SC2-PCR++'s second stage and local spectral weights for each seed's first-stage set
+    ``first`` (S, k1), best member first: the k2 members most hard-compatible through the set with
+    both the best member and themselves (counts, ties to the earlier member), then the leading
+    eigenvector of their soft compatibility without its diagonal, by power iteration from ones
+    (float32, as consistency.leading_eigenvector, which stops for the whole batch at the first
+    step where every seed's vector has settled: so does this). (second (S, k2), weights (S, k2))."""
+    seeds, k1 = first.shape
+    second = np.empty((seeds, k2), np.int64)
+    vectors = np.ones((seeds, max(iterations, 1) + 1, k2), np.float32)   # [s, 0]: the start
+    settled = np.zeros((seeds, max(iterations, 1)), np.bool_)
+    scores = np.zeros((seeds, k1), np.int64)          # scratch rows: nothing allocated per seed
+    tops = np.empty((seeds, k2), np.int64)
+    local = np.empty((seeds, k2, k2), np.float32)
+    for s in prange(seeds):
+        members = first[s]
+        for m in range(k1):
+            if hard[members[0], members[m]]:
+                for j in range(k1):
+                    if hard[members[m], members[j]]:
+                        scores[s, j] += 1
+        _top_k_into(scores[s], k2, tops[s])
+        for i in range(k2):
+            second[s, i] = members[tops[s, i]]
+        for i in range(k2):
+            for j in range(k2):
+                local[s, i, j] = soft[second[s, i], second[s, j]] if i != j else np.float32(0.0)
+        for step in range(iterations):
+            v, mv = vectors[s, step], vectors[s, step + 1]
+            total = np.float32(0.0)
+            for i in range(k2):
+                mv[i] = np.float32(0.0)
+                for j in range(k2):
+                    mv[i] += local[s, i, j] * v[j]
+                total += mv[i] * mv[i]
+            norm = np.float32(np.sqrt(total) + np.float32(1e-6))
+            close = True
+            for i in range(k2):
+                mv[i] /= norm
+                close = close and abs(mv[i] - v[i]) <= 1e-8 + 1e-5 * abs(v[i])
+            settled[s, step] = close
+    stop = iterations
+    for step in range(iterations):
+        if settled[:, step].all():
+            stop = step + 1
+            break
+    return second, vectors[:, stop].copy()
 
 
 @njit(parallel=True, **JIT)
@@ -824,6 +875,46 @@ def _gap(x, a, c, cell):
     return (a - x) * cell
 
 
+@njit(inline="always")
+def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask):
+    """The nearest point within ``threshold`` of (qx, qy, qz): (squared distance, index), or
+    (threshold squared, len(order)) when none is (grid_nearest says how)."""
+    n = len(order)
+    best, found = threshold * threshold, n
+    x = (qx - origin[0]) / cell
+    y = (qy - origin[1]) / cell
+    z = (qz - origin[2]) / cell
+    if not (-2 < x < _GRID_LIMIT + 2 and -2 < y < _GRID_LIMIT + 2 and -2 < z < _GRID_LIMIT + 2):
+        return best, found
+    cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
+    for ring in range(2):   # the query's own cell first: its best prunes the others
+        for a in range(cx - ring, cx + ring + 1):
+            if a < 0 or a > _GRID_LIMIT:
+                continue
+            ga = _gap(x, a, cx, cell)
+            for b in range(cy - ring, cy + ring + 1):
+                if b < 0 or b > _GRID_LIMIT:
+                    continue
+                gb = _gap(y, b, cy, cell)
+                for c in range(cz - ring, cz + ring + 1):
+                    if c < 0 or c > _GRID_LIMIT or max(abs(a - cx), abs(b - cy), abs(c - cz)) != ring:
+                        continue
+                    gc = _gap(z, c, cz, cell)
+                    if ga * ga + gb * gb + gc * gc > best:
+                        continue
+                    k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
+                    if k < 0:
+                        continue
+                    for p in range(starts[k], starts[k + 1]):
+                        dx = ordered[p, 0] - qx
+                        dy = ordered[p, 1] - qy
+                        dz = ordered[p, 2] - qz
+                        d = dx * dx + dy * dy + dz * dz
+                        if d < best or (d == best and order[p] < found):
+                            best, found = d, order[p]
+    return best, found
+
+
 @njit(parallel=True, **JIT)
 def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered):
     """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the
@@ -835,41 +926,74 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
     distance = np.full(m, np.inf)
     index = np.full(m, n, np.int64)
     for q in prange(m):
-        x = (queries[q, 0] - origin[0]) / cell
-        y = (queries[q, 1] - origin[1]) / cell
-        z = (queries[q, 2] - origin[2]) / cell
-        if not (-2 < x < _GRID_LIMIT + 2 and -2 < y < _GRID_LIMIT + 2 and -2 < z < _GRID_LIMIT + 2):
-            continue
-        cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
-        best, found = threshold * threshold, n
-        for ring in range(2):   # the query's own cell first: its best prunes the others
-            for a in range(cx - ring, cx + ring + 1):
-                if a < 0 or a > _GRID_LIMIT:
-                    continue
-                ga = _gap(x, a, cx, cell)
-                for b in range(cy - ring, cy + ring + 1):
-                    if b < 0 or b > _GRID_LIMIT:
-                        continue
-                    gb = _gap(y, b, cy, cell)
-                    for c in range(cz - ring, cz + ring + 1):
-                        if c < 0 or c > _GRID_LIMIT or max(abs(a - cx), abs(b - cy), abs(c - cz)) != ring:
-                            continue
-                        gc = _gap(z, c, cz, cell)
-                        if ga * ga + gb * gb + gc * gc > best:
-                            continue
-                        k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
-                        if k < 0:
-                            continue
-                        for p in range(starts[k], starts[k + 1]):
-                            dx = ordered[p, 0] - queries[q, 0]
-                            dy = ordered[p, 1] - queries[q, 1]
-                            dz = ordered[p, 2] - queries[q, 2]
-                            d = dx * dx + dy * dy + dz * dz
-                            if d < best or (d == best and order[p] < found):
-                                best, found = d, order[p]
+        best, found = _grid_nearest_one(queries[q, 0], queries[q, 1], queries[q, 2], origin, cell, threshold,
+                                        keys, table, starts, order, ordered, mask)
         if found < n and best < threshold * threshold:
             distance[q], index[q] = np.sqrt(best), found
     return distance, index
+
+
+@njit(parallel=True, **JIT)
+def grid_pairs_moments(rotations, translations, queries, points, origin, cell, threshold, keys, table, starts,
+                       order, ordered):
+    """One step of the point-level refinement for each of a batch of poses, in one pass: the
+    queries moved by each pose (``rotations`` (b, 3, 3), ``translations`` (b, 3)), each one's
+    nearest of ``points`` within ``threshold`` (as grid_nearest), and the Cauchy-weighted moments
+    of the pairs found, as estimate.weighted_kabsch forms them: the weighted centroids of the
+    moved-from queries and of their nearest points, and the cross-covariance about them. A pose's
+    sums run in query order on one thread (the same figures on any number of threads).
+    (distance (b, m), index (b, m), count (b,), source centroid (b, 3), target centroid (b, 3),
+    cross-covariance (b, 3, 3))."""
+    n, m, b = len(order), len(queries), len(rotations)
+    mask = np.int64(len(table) - 1)
+    distance = np.full((b, m), np.inf)
+    index = np.full((b, m), n, np.int64)
+    for job in prange(b * m):
+        s, q = job // m, job % m
+        R, t = rotations[s], translations[s]
+        mx = R[0, 0] * queries[q, 0] + R[0, 1] * queries[q, 1] + R[0, 2] * queries[q, 2] + t[0]
+        my = R[1, 0] * queries[q, 0] + R[1, 1] * queries[q, 1] + R[1, 2] * queries[q, 2] + t[1]
+        mz = R[2, 0] * queries[q, 0] + R[2, 1] * queries[q, 1] + R[2, 2] * queries[q, 2] + t[2]
+        best, found = _grid_nearest_one(mx, my, mz, origin, cell, threshold, keys, table, starts, order, ordered,
+                                        mask)
+        if found < n and best < threshold * threshold:
+            distance[s, q], index[s, q] = np.sqrt(best), found
+    count = np.zeros(b, np.int64)
+    source_centroid = np.zeros((b, 3))
+    target_centroid = np.zeros((b, 3))
+    cross = np.zeros((b, 3, 3))
+    for s in prange(b):
+        count[s] = _pair_moments(queries, points, distance[s], index[s], threshold, source_centroid[s],
+                                 target_centroid[s], cross[s])
+    return distance, index, count, source_centroid, target_centroid, cross
+
+
+@njit(inline="always")
+def _pair_moments(queries, points, distance, index, threshold, source_centroid, target_centroid, cross):
+    """grid_pairs_moments' sums for one pose, into the last three arguments; the pairs' count."""
+    m = len(queries)
+    weight = np.zeros(m)
+    count = 0
+    total = 0.0
+    for q in range(m):
+        if distance[q] < threshold:
+            r = distance[q] / threshold
+            weight[q] = 1.0 / (1.0 + r * r)
+            count += 1
+            total += weight[q]
+            for i in range(3):
+                source_centroid[i] += weight[q] * queries[q, i]
+                target_centroid[i] += weight[q] * points[index[q], i]
+    for i in range(3):
+        source_centroid[i] /= total + 1e-6
+        target_centroid[i] /= total + 1e-6
+    for q in range(m):
+        if weight[q] > 0:
+            for i in range(3):
+                a = weight[q] * (queries[q, i] - source_centroid[i])
+                for j in range(3):
+                    cross[i, j] += a * (points[index[q], j] - target_centroid[j])
+    return count
 
 
 @njit(inline="always")
@@ -1041,6 +1165,8 @@ def warm_up() -> None:
         compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
         _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
         second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
+        seed_consensus(np.zeros((2, 3), np.int64), hard, compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0,
+                                                                              False)[0], 2, 2)
         triangle_scores(points, points, 0.1)
         generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
@@ -1056,6 +1182,9 @@ def warm_up() -> None:
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid_nearest(points, np.zeros(3), 0.1, 0.1, keys, grid_table(keys), np.array([0, 2], np.int64),
                      np.arange(2, dtype=np.int64), points[:2].copy())
+        grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1,
+                           keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64),
+                           points[:2].copy())
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)

@@ -12,10 +12,23 @@ a map pays for it once.
 from __future__ import annotations
 
 import threading
+from typing import NamedTuple
 
 import numpy as np
 
 from . import kernels
+
+
+class PairMoments(NamedTuple):
+    """Poses' nearest pairs within a threshold and their Cauchy-weighted moments: what one step
+    of the point-level refinement needs (estimate.kabsch_from_moments), for each of b poses."""
+
+    distance: np.ndarray            # (b, m) each query's distance to its nearest point, inf where none is within
+    nearest: np.ndarray             # (b, m) that point's index
+    count: np.ndarray               # (b,) the pairs within the threshold
+    source_centroid: np.ndarray     # (b, 3) weighted, of the queries paired (before the pose moves them)
+    target_centroid: np.ndarray     # (b, 3) weighted, of their nearest points
+    cross_covariance: np.ndarray    # (b, 3, 3) sum of w (query - its centroid)(nearest - its centroid)^T
 
 
 class NeighbourGrid:
@@ -34,6 +47,21 @@ class NeighbourGrid:
             return np.full(len(queries), np.inf), np.zeros(len(queries), dtype=np.int64)
         origin, cell, keys, table, starts, order, ordered = self.cells(float(threshold))
         return kernels.grid_nearest(queries, origin, cell, float(threshold), keys, table, starts, order, ordered)
+
+    def pair_moments(self, poses: np.ndarray, queries: np.ndarray, threshold: float) -> PairMoments:
+        """The queries moved by each of ``poses`` (b, 4, 4) paired with their nearest points within
+        ``threshold``, and the pairs' moments, in one compiled pass (the refinement's numpy glue
+        around nearest_within cost as much as the search: 0.12 ms a step on 1,000 keypoints)."""
+        queries = np.ascontiguousarray(queries, dtype=np.float64)
+        b, m = len(poses), len(queries)
+        if len(self.points) == 0:
+            return PairMoments(np.full((b, m), np.inf), np.zeros((b, m), dtype=np.int64), np.zeros(b, dtype=np.int64),
+                               np.zeros((b, 3)), np.zeros((b, 3)), np.zeros((b, 3, 3)))
+        origin, cell, *grid = self.cells(float(threshold))
+        rotations = np.ascontiguousarray(poses[:, :3, :3], dtype=np.float64)
+        translations = np.ascontiguousarray(poses[:, :3, 3], dtype=np.float64)
+        return PairMoments(*kernels.grid_pairs_moments(rotations, translations, queries, self.points, origin, cell,
+                                                       float(threshold), *grid))
 
     def cells(self, threshold: float) -> tuple:
         """The grid for ``threshold`` (origin, cell, keys, table, starts, order, ordered points:

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
-from ..estimate import agreeing, point_refine
+from ..estimate import agreeing, point_refine, point_refine_all
 from ..geometry import evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior
 from ..initial import same_place
@@ -171,9 +171,8 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     if prior is not None:
         starts = starts[prior.allows(starts, source, target)]
     rows, poses = [], []
-    for start in starts:
-        refined = point_refine(start, sample, target.neighbours, est.inlier_threshold, est.max_iterations,
-                               prior and prior.clamp)
+    for refined in point_refine_all(starts, sample, target.neighbours, est.inlier_threshold, est.max_iterations,
+                                    prior and prior.clamp):
         agree = agreeing(refined.transform, *pairs, tau)
         chance = lead_chance(len(independent(pairs[0][agree_with_T & ~agree], radius)),
                              len(independent(pairs[0][agree & ~agree_with_T], radius)))
