@@ -6,8 +6,11 @@ from scipy.spatial import cKDTree
 from regor_ros.core.neighbour_grid import NeighbourGrid
 
 
-def _as_kd_tree(points, queries, threshold):
-    grid_distance, grid_index = NeighbourGrid(points).nearest_within(queries, threshold)
+def _as_kd_tree(points, queries, threshold, dense=True):
+    """The grid answers as the kd-tree, its empty cells flagged densely or (a wide cloud) not."""
+    grid = NeighbourGrid(points)
+    grid_distance, grid_index = grid.nearest_within(queries, threshold)
+    assert (len(grid.cells(threshold).occupied) > 0) == dense
     tree_distance, tree_index = cKDTree(points).query(queries, distance_upper_bound=threshold)
     found = np.isfinite(tree_distance)
     np.testing.assert_array_equal(np.isfinite(grid_distance), found)
@@ -32,7 +35,7 @@ def test_a_cloud_too_wide_for_cells_of_the_threshold_still_answers():
     rng = np.random.default_rng(4)
     points = np.vstack([rng.random((500, 3)), rng.random((500, 3)) + [2.0e5, 0.0, 0.0]])
     queries = np.vstack([rng.random((300, 3)), rng.random((300, 3)) + [2.0e5, 0.0, 0.0]])
-    assert _as_kd_tree(points, queries, 0.05).sum() > 100
+    assert _as_kd_tree(points, queries, 0.05, dense=False).sum() > 100
 
 
 def test_a_threshold_asked_again_reuses_its_grid_and_an_empty_cloud_finds_nothing():

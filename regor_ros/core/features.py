@@ -59,9 +59,10 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     the points within two radii around it, which bounds the memory (about 1 kB a point)."""
     def histograms(rows) -> np.ndarray:
         grid = NeighbourGrid(points[rows])
-        _origin, _cell, *cells = grid.cells(radius)   # cells no smaller than the radius: their keys suffice
+        cells = grid.cells(radius)   # cells no smaller than the radius: their keys suffice
         return kernels.fpfh_features(grid.points, np.ascontiguousarray(normals[rows], dtype=np.float64),
-                                     float(radius), int(max_nn), *cells).astype(np.float32)
+                                     float(radius), int(max_nn), cells.keys, cells.table, cells.starts, cells.order,
+                                     cells.ordered).astype(np.float32)
 
     if len(points) <= chunk:
         return histograms(slice(None))

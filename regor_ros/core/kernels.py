@@ -876,9 +876,10 @@ def _gap(x, a, c, cell):
 
 
 @njit(inline="always")
-def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask):
+def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask, occupied, span):
     """The nearest point within ``threshold`` of (qx, qy, qz): (squared distance, index), or
-    (threshold squared, len(order)) when none is (grid_nearest says how)."""
+    (threshold squared, len(order)) when none is (grid_nearest says how). ``occupied`` (flat over
+    the ``span`` of cells, or empty) answers for an empty cell without the table."""
     n = len(order)
     best, found = threshold * threshold, n
     x = (qx - origin[0]) / cell
@@ -902,6 +903,9 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
                     gc = _gap(z, c, cz, cell)
                     if ga * ga + gb * gb + gc * gc > best:
                         continue
+                    if len(occupied) and (a >= span[0] or b >= span[1] or c >= span[2]
+                                          or not occupied[(a * span[1] + b) * span[2] + c]):
+                        continue
                     k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
                     if k < 0:
                         continue
@@ -916,18 +920,18 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
 
 
 @njit(parallel=True, **JIT)
-def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered):
+def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered, occupied, span):
     """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the
     query's cell, then the 26 around it (cells are never smaller than the threshold, so these hold
-    every point within it), a cell skipped when its nearest face is farther than the best found;
-    ties go to the lower index. (distance, index), (inf, len) where none is."""
+    every point within it), a cell skipped when its nearest face is farther than the best found
+    or it is empty; ties go to the lower index. (distance, index), (inf, len) where none is."""
     n, m = len(order), len(queries)
     mask = np.int64(len(table) - 1)
     distance = np.full(m, np.inf)
     index = np.full(m, n, np.int64)
     for q in prange(m):
         best, found = _grid_nearest_one(queries[q, 0], queries[q, 1], queries[q, 2], origin, cell, threshold,
-                                        keys, table, starts, order, ordered, mask)
+                                        keys, table, starts, order, ordered, mask, occupied, span)
         if found < n and best < threshold * threshold:
             distance[q], index[q] = np.sqrt(best), found
     return distance, index
@@ -935,7 +939,7 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
 
 @njit(parallel=True, **JIT)
 def grid_pairs_moments(rotations, translations, queries, points, origin, cell, threshold, keys, table, starts,
-                       order, ordered):
+                       order, ordered, occupied, span):
     """One step of the point-level refinement for each of a batch of poses, in one pass: the
     queries moved by each pose (``rotations`` (b, 3, 3), ``translations`` (b, 3)), each one's
     nearest of ``points`` within ``threshold`` (as grid_nearest), and the Cauchy-weighted moments
@@ -955,7 +959,7 @@ def grid_pairs_moments(rotations, translations, queries, points, origin, cell, t
         my = R[1, 0] * queries[q, 0] + R[1, 1] * queries[q, 1] + R[1, 2] * queries[q, 2] + t[1]
         mz = R[2, 0] * queries[q, 0] + R[2, 1] * queries[q, 1] + R[2, 2] * queries[q, 2] + t[2]
         best, found = _grid_nearest_one(mx, my, mz, origin, cell, threshold, keys, table, starts, order, ordered,
-                                        mask)
+                                        mask, occupied, span)
         if found < n and best < threshold * threshold:
             distance[s, q], index[s, q] = np.sqrt(best), found
     count = np.zeros(b, np.int64)
@@ -1180,11 +1184,10 @@ def warm_up() -> None:
         within_any(points, points[:2], np.ones(2))
         pooled_counts(np.arange(3, dtype=np.int64), np.arange(4, dtype=np.int64), np.arange(2, dtype=np.int64))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
-        grid_nearest(points, np.zeros(3), 0.1, 0.1, keys, grid_table(keys), np.array([0, 2], np.int64),
-                     np.arange(2, dtype=np.int64), points[:2].copy())
-        grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1,
-                           keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64),
-                           points[:2].copy())
+        grid = (keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(),
+                np.ones(1, np.bool_), np.ones(3, np.int64))
+        grid_nearest(points, np.zeros(3), 0.1, 0.1, *grid)
+        grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1, *grid)
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),
                    np.array([0, 3], np.int64), 2, 2)
