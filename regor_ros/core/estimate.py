@@ -102,7 +102,7 @@ def point_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, thres
 def point_refine_all(starts: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float,
                      iterations: int, clamp: Clamp = None) -> list[PointRefinement]:
     """point_refine of each of ``starts`` (b, 4, 4), the poses still moving stepped together (one
-    compiled pass per step for all of them: a gate's rivals are a dozen short refinements)."""
+    compiled pass per step for all of them: a gate's rivals are up to nine short refinements)."""
     poses = np.array(starts, dtype=np.float64).reshape(-1, 4, 4)
     moments = list(target.pair_moments(poses, source, threshold))
     distance, nearest, count = moments[:3]
