@@ -238,8 +238,8 @@ def seed_consensus(first, hard, soft, k2, iterations):
     step where every seed's vector has settled: so does this). (second (S, k2), weights (S, k2))."""
     seeds, k1 = first.shape
     second = np.empty((seeds, k2), np.int64)
-    vectors = np.ones((seeds, max(iterations, 1) + 1, k2), np.float32)   # [s, 0]: the start
-    settled = np.zeros((seeds, max(iterations, 1)), np.bool_)
+    vectors = np.ones((seeds, iterations + 1, k2), np.float32)   # [s, 0]: the start
+    settled = np.zeros((seeds, iterations), np.bool_)
     scores = np.zeros((seeds, k1), np.int64)          # scratch rows: nothing allocated per seed
     tops = np.empty((seeds, k2), np.int64)
     local = np.empty((seeds, k2, k2), np.float32)
@@ -1166,11 +1166,10 @@ def warm_up() -> None:
     start scipy's OpenBLAS threads, which took the node's cores under load)."""
     with blas_on_one_thread():
         points = np.random.default_rng(0).random((8, 3))
-        compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
+        soft = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)[0]
         _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
         second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
-        seed_consensus(np.zeros((2, 3), np.int64), hard, compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0,
-                                                                              False)[0], 2, 2)
+        seed_consensus(np.zeros((2, 3), np.int64), hard, soft, 2, 2)
         triangle_scores(points, points, 0.1)
         generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))

@@ -105,7 +105,8 @@ class NeighbourGrid:
         starts = np.append(starts, len(order)).astype(np.int64)
         table = kernels.grid_table(keys)
         span = coordinates.max(axis=0) + 1
-        occupied = np.zeros(int(np.prod(span)) if np.prod(span.astype(float)) <= DENSE_CELLS else 0, dtype=bool)
+        spanned = float(np.prod(span.astype(float)))   # in floats: a UTM-wide span overflows int64
+        occupied = np.zeros(int(spanned) if spanned <= DENSE_CELLS else 0, dtype=bool)
         if len(occupied):
             occupied[(coordinates[:, 0] * span[1] + coordinates[:, 1]) * span[2] + coordinates[:, 2]] = True
         return Cells(origin, cell, keys, table, starts, order, np.ascontiguousarray(self.points[order]), occupied, span)
