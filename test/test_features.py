@@ -137,3 +137,59 @@ def test_fpfh_is_the_same_on_one_thread_and_zero_for_a_point_alone():
         numba.set_num_threads(threads)
     np.testing.assert_array_equal(one, both)
     assert not both[-1].any() and both[:-1].any(axis=1).mean() > 0.99
+
+
+def _reference_fpfh(points, normals, radius, max_nn):
+    """FPFH by its definition, one pair at a time with the arctangent: each point's max_nn - 1
+    nearest within the radius, ties to the lower index; SPFH thirds summing to 100; FPFH the
+    neighbours' SPFH weighted by one over the squared distance, each third normalised to 100,
+    plus the point's own."""
+    def bins(p, q):
+        d = points[q] - points[p]
+        length = np.linalg.norm(d)
+        cos1, cos2 = normals[p] @ d / length, normals[q] @ d / length
+        u, w, phi = normals[p], normals[q], cos1
+        if abs(cos1) < abs(cos2):
+            u, w, phi, d = normals[q], normals[p], -cos2, -d
+        v = np.cross(d, u)
+        v /= np.linalg.norm(v)
+        theta = np.arctan2(np.cross(u, v) @ w, u @ w)
+        return [min(max(int(np.floor(11 * x)), 0), 10)
+                for x in ((theta + np.pi) / (2 * np.pi), (v @ w + 1) / 2, (phi + 1) / 2)]
+
+    n = len(points)
+    d2 = ((points[:, None] - points[None]) ** 2).sum(axis=2)
+    neighbours = []
+    for p in range(n):
+        within = [q for q in np.lexsort((np.arange(n), d2[p])) if q != p and d2[p, q] <= radius ** 2]
+        neighbours.append(within[:max_nn - 1])
+    spfh = np.zeros((n, 33))
+    for p in range(n):
+        for q in neighbours[p]:
+            for third, b in enumerate(bins(p, q)):
+                spfh[p, 11 * third + b] += 100.0 / len(neighbours[p])
+    out = np.zeros((n, 33))
+    for p in range(n):
+        for q in neighbours[p]:
+            out[p] += spfh[q] / d2[p, q]
+        for third in range(3):
+            part = out[p, 11 * third:11 * third + 11]
+            part *= 100.0 / part.sum()
+        out[p] += spfh[p]
+    return out
+
+
+def test_fpfh_is_its_definition_where_neighbours_tie_at_the_cut_off():
+    """On a lattice whole shells of neighbours lie at one distance, so the max_nn-th nearest
+    ties with others; the kernel keeps the lower indices, bins every pair as the arctangent
+    does (it counts bin edges instead), and sums the histograms as the definition does."""
+    from regor_ros.core.features import fpfh
+    spacing = 1 / 16   # exact in binary: the lattice's distances tie to the last bit
+    grid = np.stack(np.meshgrid(np.arange(7), np.arange(6), np.arange(2), indexing="ij"), -1).reshape(-1, 3)
+    points = grid * spacing
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=points.shape) + [0.0, 0.0, 3.0]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    for radius, max_nn in ((2.5 * spacing, 12), (1.5 * spacing, 30), (3.2 * spacing, 40)):
+        expected = _reference_fpfh(points, normals, radius, max_nn)
+        np.testing.assert_allclose(fpfh(points, normals, radius, max_nn), expected, rtol=1e-5, atol=1e-4)
