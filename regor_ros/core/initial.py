@@ -137,14 +137,14 @@ def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random
     return np.sort(order[:cfg.max_correspondences])
 
 
-def _duplicate(T: np.ndarray, kept: list, tolerance: float) -> bool:
-    """Whether ``T`` is within DEDUPE_ANGLE_DEG and ``tolerance`` of a kept pose. The positions,
-    compared with all kept poses at once, pick the few worth the exact test (with a margin far
-    above rounding, so the answer is the exact test's)."""
-    if not kept:
+def _near_any(T: np.ndarray, poses: list, angle_deg: float, tolerance: float) -> bool:
+    """Whether ``T`` is within ``angle_deg`` and ``tolerance`` of one of ``poses``. The positions,
+    compared with all of them at once, pick the few worth the exact test (with a margin far above
+    rounding, so the answer is the exact test's)."""
+    if not poses:
         return False
-    offsets = np.linalg.norm(np.array([K[:3, 3] for K in kept]) - T[:3, 3], axis=1)
-    return any(poses_close(T, kept[i], DEDUPE_ANGLE_DEG, tolerance)
+    offsets = np.linalg.norm(np.array([K[:3, 3] for K in poses]) - T[:3, 3], axis=1)
+    return any(poses_close(T, poses[i], angle_deg, tolerance)
                for i in np.flatnonzero(offsets < tolerance * (1 + 1e-9)))
 
 
@@ -203,7 +203,7 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
     for h in ranked:
         T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp)
-        if cfg.dedupe_hypotheses and _duplicate(T, kept, tolerance):
+        if cfg.dedupe_hypotheses and _near_any(T, kept, DEDUPE_ANGLE_DEG, tolerance):
             continue
         kept.append(T)
         fitness, verified_src, verified_tgt = fs_tcd_fitness(
@@ -235,7 +235,8 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
     of trees offers several)."""
     out: list = []
     for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):
-        if not any(same_place(poses[i], kept, inlier_threshold) for kept, _ in out):
+        if not _near_any(poses[i], [kept for kept, _ in out], DISTINCT_ANGLE_DEG,
+                         DISTINCT_TRANSLATION_FRACTION * inlier_threshold):
             out.append((poses[i], int(supports[i])))
     return out
 

@@ -169,48 +169,6 @@ def compatibility_matrices(source, target, threshold, heights, slack, use_height
     return soft, hard, tight
 
 
-@njit(**JIT)
-def _top_k_of_row(values, columns, k, n):
-    """The k best columns of a row whose nonzero ``values`` sit at ``columns`` (ascending) and
-    every other column is 0: by value, ties and zeros in column order."""
-    order = np.argsort(-values, kind="mergesort")  # stable: equal values keep column order
-    out = np.empty(k, dtype=np.int64)
-    filled = 0
-    for m in order:
-        if filled == k or values[m] <= 0:
-            break
-        out[filled] = columns[m]
-        filled += 1
-    if filled < k:  # then the zero-valued columns, lowest first
-        taken = np.zeros(n, dtype=np.bool_)
-        for m in range(filled):
-            taken[out[m]] = True
-        for column in range(n):
-            if filled == k:
-                break
-            if not taken[column]:
-                out[filled] = column
-                filled += 1
-    return out
-
-
-@njit(parallel=True, **JIT)
-def second_order_top_k(tight, hard, rows, k):
-    """For each of ``rows``: the k columns j of highest second-order compatibility
-    (tight[row] . tight[j]) x hard[row, j], best first, ties in column order (``tight``
-    bit-packed). Only the columns hard-compatible with the row are counted (the others are 0)."""
-    n = hard.shape[0]
-    out = np.empty((len(rows), k), dtype=np.int64)
-    for s in prange(len(rows)):
-        row = rows[s]
-        columns = np.flatnonzero(hard[row])
-        values = np.empty(len(columns), dtype=np.int64)
-        for m in range(len(columns)):
-            values[m] = _common(tight, row, columns[m])
-        out[s] = _top_k_of_row(values, columns, k, n)
-    return out
-
-
 @njit(inline="always")
 def _top_k_into(values, k, out):
     """The indices of the k largest ``values`` into ``out``, best first; ties go to the lower index."""
@@ -226,6 +184,50 @@ def _top_k_into(values, k, out):
             p -= 1
         best[p], out[p] = v, j
         filled = min(filled + 1, k)
+
+
+@njit(inline="always")
+def _top_k_of_row(values, columns, k, n, out):
+    """The k best columns of a row, into ``out``: its nonzero ``values`` sit at ``columns``
+    (ascending) and every other column is 0; by value, ties and zeros in column order. A
+    selection of the k, not a sort of the row (a seed's row holds hundreds of columns, k is 20)."""
+    best = np.empty(k, dtype=np.int64)
+    ranked = min(k, len(values))
+    if ranked > 0:
+        _top_k_into(values, ranked, best)
+    filled = 0
+    for m in range(ranked):
+        if values[best[m]] <= 0:
+            break
+        out[filled] = columns[best[m]]
+        filled += 1
+    if filled < k:  # then the zero-valued columns, lowest first
+        taken = np.zeros(n, dtype=np.bool_)
+        for m in range(filled):
+            taken[out[m]] = True
+        for column in range(n):
+            if filled == k:
+                break
+            if not taken[column]:
+                out[filled] = column
+                filled += 1
+
+
+@njit(parallel=True, **JIT)
+def second_order_top_k(tight, hard, rows, k):
+    """For each of ``rows``: the k columns j of highest second-order compatibility
+    (tight[row] . tight[j]) x hard[row, j], best first, ties in column order (``tight``
+    bit-packed). Only the columns hard-compatible with the row are counted (the others are 0)."""
+    n = hard.shape[0]
+    out = np.empty((len(rows), k), dtype=np.int64)
+    for s in prange(len(rows)):
+        row = rows[s]
+        columns = np.flatnonzero(hard[row])
+        values = np.empty(len(columns), dtype=np.int64)
+        for m in range(len(columns)):
+            values[m] = _common(tight, row, columns[m])
+        _top_k_of_row(values, columns, k, n, out[s])
+    return out
 
 
 @njit(parallel=True, **JIT)
