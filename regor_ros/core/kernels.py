@@ -187,6 +187,33 @@ def _top_k_into(values, k, out):
 
 
 @njit(inline="always")
+def _kth_smallest(values, n, k):
+    """The k-th smallest (1-based) of values[:n], which it reorders so that the k smallest come
+    first: Hoare's selection in place (np.partition allocates a copy on every call, and the
+    kernels select per point, per query and per list)."""
+    lo, hi, target = 0, n - 1, k - 1
+    while lo < hi:
+        pivot = values[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if target <= j:
+            hi = j
+        elif target >= i:
+            lo = i
+        else:
+            break
+    return values[target]
+
+
+@njit(inline="always")
 def _top_k_of_row(values, columns, k, n, out):
     """The k best columns of a row, into ``out``: its nonzero ``values`` sit at ``columns``
     (ascending) and every other column is 0; by value, ties and zeros in column order. A
@@ -595,12 +622,11 @@ def _spare(k):
 
 @njit
 def _keep_best(keys, k):
-    """Keep the k best (smallest) of a full list of ``keys`` in its first k places, empty the
-    rest; the similarity of the worst kept (the list's new floor)."""
-    best = np.partition(keys, k - 1)
-    keys[:k] = best[:k]
+    """Keep the k best (smallest) of a full list of ``keys`` in its first k places (selected in
+    place), empty the rest; the similarity of the worst kept (the list's new floor)."""
+    worst = _kth_smallest(keys, len(keys), k)
     keys[k:] = _EMPTY
-    return _similarity_of(best[k - 1])
+    return _similarity_of(worst)
 
 
 @njit(inline="always")
@@ -626,9 +652,13 @@ def _offer_to_list(keys, held, floor, i, k, dots, start):
 
 @njit(inline="always")
 def _unpack_best(keys, positions, similarities):
-    """The len(positions) best of ``keys`` (any order), most similar first, into the two rows."""
+    """The len(positions) best of ``keys`` (any order; reordered), most similar first, into the
+    two rows: selected and sorted in place."""
     k = len(positions)
-    ranked = np.sort(np.partition(keys, k - 1)[:k] if 0 < k < len(keys) else keys)
+    if 0 < k < len(keys):
+        _kth_smallest(keys, len(keys), k)
+    ranked = keys[:k]
+    ranked.sort()
     for i in range(len(positions)):
         similarities[i] = _similarity_of(ranked[i])
         positions[i] = _position_of(ranked[i])
@@ -1005,32 +1035,6 @@ def _pair_moments(queries, points, distance, index, threshold, source_centroid, 
                 for j in range(3):
                     cross[i, j] += a * (points[index[q], j] - target_centroid[j])
     return count
-
-
-@njit(inline="always")
-def _kth_smallest(values, n, k):
-    """The k-th smallest (1-based) of values[:n], which it reorders: Hoare's selection in place,
-    where np.partition would allocate a copy for every point."""
-    lo, hi, target = 0, n - 1, k - 1
-    while lo < hi:
-        pivot = values[(lo + hi) // 2]
-        i, j = lo, hi
-        while i <= j:
-            while values[i] < pivot:
-                i += 1
-            while values[j] > pivot:
-                j -= 1
-            if i <= j:
-                values[i], values[j] = values[j], values[i]
-                i += 1
-                j -= 1
-        if target <= j:
-            hi = j
-        elif target >= i:
-            lo = i
-        else:
-            break
-    return values[target]
 
 
 @njit(inline="always")
