@@ -614,6 +614,19 @@ def _offer_to_heap(heap, dots, start):
 
 
 @njit(inline="always")
+def _offer_to_best(best, dots, start):
+    """_offer_to_heap for a heap of one (a nearest-neighbour search): the run's greatest found in
+    one vectorised pass, and the first position that holds it, where the heap compares every
+    similarity with its worst in turn (the same key: the first of the greatest, if it beats the kept)."""
+    top = _largest(dots)
+    if top > _similarity_of(best[0]):
+        at = 0
+        while dots[at] != top:
+            at += 1
+        best[0] = _rank_key(dots[at], start + at)
+
+
+@njit(inline="always")
 def _spare(k):
     """A top-k list's room beyond its k: each time it fills, the k best are kept and the floor
     rises, so this many entries pass between two selections."""
@@ -709,7 +722,10 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
                 block[a] = queries[asking[first_asking + a]]
             dots = np.dot(block, table[start:start + n].T)
             for a in range(len(block)):
-                _offer_to_heap(heaps[t, asking[first_asking + a]], dots[a], start)
+                if k == 1:
+                    _offer_to_best(heaps[t, asking[first_asking + a]], dots[a], start)
+                else:
+                    _offer_to_heap(heaps[t, asking[first_asking + a]], dots[a], start)
     out_position = np.empty((n_queries, k), np.int64)
     out_similarity = np.empty((n_queries, k), np.float32)
     for q in prange(n_queries):
@@ -913,10 +929,26 @@ def _gap(x, a, c, cell):
 
 
 @njit(inline="always")
+def _flagged(bits, i):
+    """Whether bit ``i`` of a bitset of uint64 words is set."""
+    return (bits[i >> 6] >> np.uint64(i & 63)) & np.uint64(1) != 0
+
+
+@njit(**JIT)
+def flag_bits(indices, count):
+    """A bitset of ``count`` bits (uint64 words) with the bits at ``indices`` set."""
+    bits = np.zeros((count + 63) // 64, np.uint64)
+    for i in indices:
+        bits[i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+    return bits
+
+
+@njit(inline="always")
 def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask, occupied, span):
     """The nearest point within ``threshold`` of (qx, qy, qz): (squared distance, index), or
-    (threshold squared, len(order)) when none is (grid_nearest says how). ``occupied`` (flat over
-    the ``span`` of cells, or empty) answers for an empty cell without the table."""
+    (threshold squared, len(order)) when none is (grid_nearest says how). ``occupied`` (a bit
+    per cell over the ``span`` of cells, flag_bits, or empty) answers for an empty cell without
+    the table."""
     n = len(order)
     best, found = threshold * threshold, n
     x = (qx - origin[0]) / cell
@@ -941,7 +973,7 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
                     if ga * ga + gb * gb + gc * gc > best:
                         continue
                     if len(occupied) and (a >= span[0] or b >= span[1] or c >= span[2]
-                                          or not occupied[(a * span[1] + b) * span[2] + c]):
+                                          or not _flagged(occupied, (a * span[1] + b) * span[2] + c)):
                         continue
                     k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
                     if k < 0:
@@ -1228,7 +1260,7 @@ def warm_up() -> None:
         pooled_counts(np.arange(3, dtype=np.int64), np.arange(4, dtype=np.int64), np.arange(2, dtype=np.int64))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid = (keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(),
-                np.ones(1, np.bool_), np.ones(3, np.int64))
+                flag_bits(np.zeros(1, np.int64), 1), np.ones(3, np.int64))
         grid_nearest(points, np.zeros(3), 0.1, 0.1, *grid)
         grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1, *grid)
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
