@@ -614,19 +614,6 @@ def _offer_to_heap(heap, dots, start):
 
 
 @njit(inline="always")
-def _offer_to_best(best, dots, start):
-    """_offer_to_heap for a heap of one (a nearest-neighbour search): the run's greatest found in
-    one vectorised pass, and the first position that holds it, where the heap compares every
-    similarity with its worst in turn (the same key: the first of the greatest, if it beats the kept)."""
-    top = _largest(dots)
-    if top > _similarity_of(best[0]):
-        at = 0
-        while dots[at] != top:
-            at += 1
-        best[0] = _rank_key(dots[at], start + at)
-
-
-@njit(inline="always")
 def _spare(k):
     """A top-k list's room beyond its k: each time it fills, the k best are kept and the floor
     rises, so this many entries pass between two selections."""
@@ -722,10 +709,7 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
                 block[a] = queries[asking[first_asking + a]]
             dots = np.dot(block, table[start:start + n].T)
             for a in range(len(block)):
-                if k == 1:
-                    _offer_to_best(heaps[t, asking[first_asking + a]], dots[a], start)
-                else:
-                    _offer_to_heap(heaps[t, asking[first_asking + a]], dots[a], start)
+                _offer_to_heap(heaps[t, asking[first_asking + a]], dots[a], start)
     out_position = np.empty((n_queries, k), np.int64)
     out_similarity = np.empty((n_queries, k), np.float32)
     for q in prange(n_queries):
