@@ -7,8 +7,9 @@ its own first, skipping a cell that cannot hold anything nearer than what was fo
 Measured on a 3DMatch pair (4.3 k keypoints each): 1.1 ms against the kd-tree's 3.0 ms at
 0.1 m; on a MulRan map (74 k keypoints, a 14.5 k scan): 6-15 ms against 11-17 ms at 1.2-0.3 m;
 the same nearest keypoints. A grid is built the first time a threshold is asked for and kept, so
-a map pays for it once. A grid of a scan's size also flags its occupied cells densely: a query
-off the surfaces (most of a rival's) then skips its empty neighbours for a read each.
+a map pays for it once. A grid also flags its occupied cells, a bit each (a scan's grids, and a
+map's at all but its finest thresholds): a query off the surfaces (most of a rival's) then skips
+its empty neighbours for a read each.
 """
 from __future__ import annotations
 
