@@ -160,3 +160,13 @@ def test_threedmatch_sample_is_fixed_and_a_bad_list_is_refused(tmp_path, capsys)
     with pytest.raises(SystemExit):
         main(["--threedmatch", str(tmp_path), "--out", str(tmp_path / "out")])
     assert "entry 3 lacks T" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("mode", ["--threedmatch", "--maps", "--map-scaling"])
+def test_an_argument_the_mode_would_not_read_is_refused(mode, tmp_path, capsys):
+    """A second override after one --set is a positional folder to argparse; --threedmatch and the
+    map modes read none, so it would be dropped without a word and the run made without it."""
+    with pytest.raises(SystemExit):
+        main([mode, str(tmp_path), "--set", "features.normals_toward_sensors=true",
+              "estimation.visible_candidates=8", "--out", str(tmp_path / "out")])
+    assert "each override needs its own --set" in capsys.readouterr().err

@@ -28,6 +28,13 @@ data formats:
 def main(argv=None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
+    instead = next((flag for flag, given in (("--threedmatch", args.threedmatch), ("--maps", args.maps),
+                                             ("--map-scaling", args.map_scaling), ("--batch", args.batch))
+                    if given), None)
+    if args.data and instead and not args.profile:
+        # a folder it would not read, or an override that lost its --set: refused, not silently dropped
+        parser.error(f"{instead} reads no folders of pairs, but {', '.join(map(str, args.data))} was given "
+                     "(each override needs its own --set NAME=VALUE)")
     # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
     # known, so that --help and a mistyped option answer at once
     from ..core import warm_up
