@@ -223,10 +223,15 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
                          distinct_candidates(kept, fitnesses, cfg.inlier_threshold))
 
 
+def near_place(T: np.ndarray, poses: list, inlier_threshold: float) -> bool:
+    """Whether ``T`` is one place of the search with one of ``poses``: within DISTINCT_ANGLE_DEG
+    and DISTINCT_TRANSLATION_FRACTION x tau of it."""
+    return _near_any(T, poses, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+
+
 def same_place(A: np.ndarray, B: np.ndarray, inlier_threshold: float) -> bool:
-    """Whether two poses are one place of the search: within DISTINCT_ANGLE_DEG and
-    DISTINCT_TRANSLATION_FRACTION x tau of each other."""
-    return poses_close(A, B, DISTINCT_ANGLE_DEG, DISTINCT_TRANSLATION_FRACTION * inlier_threshold)
+    """Whether two poses are one place of the search (near_place)."""
+    return near_place(A, [B], inlier_threshold)
 
 
 def distinct_candidates(poses: list, supports: list, inlier_threshold: float) -> list:
@@ -235,8 +240,7 @@ def distinct_candidates(poses: list, supports: list, inlier_threshold: float) ->
     of trees offers several)."""
     out: list = []
     for i in np.argsort(-np.asarray(supports, dtype=np.float64), kind="stable"):
-        if not _near_any(poses[i], [kept for kept, _ in out], DISTINCT_ANGLE_DEG,
-                         DISTINCT_TRANSLATION_FRACTION * inlier_threshold):
+        if not near_place(poses[i], [kept for kept, _ in out], inlier_threshold):
             out.append((poses[i], int(supports[i])))
     return out
 
@@ -248,4 +252,4 @@ def led_by(leaders: list, candidates: list, inlier_threshold: float) -> list:
     def support_at(T):
         return max((s for pose, s in candidates if same_place(pose, T, inlier_threshold)), default=0)
     return [(T, support_at(T)) for T in leaders] + [
-        (pose, s) for pose, s in candidates if not any(same_place(pose, T, inlier_threshold) for T in leaders)]
+        (pose, s) for pose, s in candidates if not near_place(pose, leaders, inlier_threshold)]
