@@ -73,7 +73,8 @@ def test_the_plausible_candidate_with_the_most_inliers_is_taken(plausible_shifts
     inliers = {1.0: 900, 2.0: 50, 3.0: 80, 4.0: 999}
 
     # with tau = 0.1 m, poses within 0.5 m are one place (initial.same_place)
-    picked = visible_candidate(shifted(0.0), candidates, 3, lambda T: Refined(T, inliers[T[0, 3]]),
+    picked = visible_candidate(shifted(0.0), candidates, 3,
+                               lambda poses: [Refined(T, inliers[T[0, 3]]) for T in poses],
                                lambda T: T[0, 3] in plausible_shifts, 0.1)
     # only the first three distinct places are refined: 4.0, the most supported, is past the count
     assert (picked is None) if expected is None else picked.transform[0, 3] == expected

@@ -16,6 +16,7 @@ from .estimate import (
     plane_refine,
     plane_thresholds,
     point_refine,
+    point_refine_all,
     pose_covariance,
     poses_close,
     resolution_uncertainty,
@@ -433,17 +434,21 @@ def _visible_instead(refined, selected: str, candidates: list, source: PreparedC
     that passes the free-space check, in place of ``refined`` (core/visible_candidate.py), or
     ``refined`` itself when there is none."""
     picked = visible_candidate(refined.transform, candidates, config.estimation.visible_candidates,
-                               lambda T: _refined(T, source, target, config, prior), plausible,
+                               lambda poses: _refined_all(poses, source, target, config, prior), plausible,
                                config.initial.inlier_threshold)
     return (refined, selected) if picked is None else (picked, "candidate")
 
 
-def _refined(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-             prior: GravityPrior | None):
-    """The estimator's refinement of another pose: point level, then planes when configured."""
-    point_level = _refine(T, source, target, config, prior)
-    return (_plane_refine(point_level, source, target, config, prior) if config.estimation.plane_refinement
-            else point_level)
+def _refined_all(poses: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+                 prior: GravityPrior | None) -> list:
+    """The estimator's refinement of other poses (b, 4, 4): point level, stepped together, then
+    planes when configured (each pose refines as it would alone)."""
+    est = config.estimation
+    point_level = point_refine_all(poses, source.points, target.neighbours, est.inlier_threshold,
+                                   est.max_iterations, prior and prior.clamp)
+    if not est.plane_refinement:
+        return point_level
+    return [_plane_refine(refined, source, target, config, prior) for refined in point_level]
 
 
 def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: PreparedCloud,

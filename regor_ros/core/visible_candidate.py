@@ -19,15 +19,15 @@ import numpy as np
 from .initial import same_place
 
 
-def visible_candidate(T: np.ndarray, candidates: list, count: int, refine: Callable,
+def visible_candidate(T: np.ndarray, candidates: list, count: int, refine_all: Callable,
                       plausible: Callable[[np.ndarray], bool], inlier_threshold: float):
     """Of the first ``count`` ``candidates`` ([(pose, support)], best first) at another place than
-    ``T`` (initial.same_place), each refined (``refine``: pose -> refinement with ``transform`` and
-    ``source_index``), the one that is ``plausible`` with the most inliers; None when none is."""
+    ``T`` (initial.same_place), each refined (``refine_all``: poses (b, 4, 4) -> their refinements,
+    each with ``transform`` and ``source_index``; one batch, as the gate's rivals are refined), the
+    one that is ``plausible`` with the most inliers; None when none is."""
     best = None
     others = [pose for pose, _ in candidates if not same_place(pose, T, inlier_threshold)][:count]
-    for pose in others:
-        refined = refine(pose)
+    for refined in refine_all(np.reshape(others, (-1, 4, 4))) if others else []:
         if same_place(refined.transform, T, inlier_threshold) or not plausible(refined.transform):
             continue
         if best is None or len(refined.source_index) > len(best.source_index):
