@@ -6,6 +6,10 @@ from scipy.spatial.transform import Rotation
 
 # (max rotation error in degrees, max translation error in metres) counted as a success
 SUCCESS_THRESHOLDS = {"indoor": (15.0, 0.30), "object": (15.0, 0.30), "outdoor": (5.0, 0.60)}
+# (rotation error in degrees, translation error in metres) beyond which a wrong pose is gross: of
+# no use to a robot at all, where one within them is a near miss (of a ground truth itself loose by
+# a few degrees, as 3DMatch's is) that a local refinement brings in
+GROSS_THRESHOLDS = {"indoor": (20.0, 0.60), "object": (20.0, 0.60 * 0.06), "outdoor": (20.0, 0.60)}
 # ground-truth residual below which a correspondence is correct [m]
 INLIER_THRESHOLDS = {"indoor": 0.10, "object": 0.10 * 0.06, "outdoor": 0.60}
 
@@ -35,6 +39,13 @@ def is_success(T_est: np.ndarray, T_gt: np.ndarray, kind: str) -> bool:
     """Within the benchmark's rotation and translation thresholds for this kind of data."""
     max_re, max_te = SUCCESS_THRESHOLDS[kind]
     return rotation_error_deg(T_est, T_gt) < max_re and translation_error(T_est, T_gt) < max_te
+
+
+def is_gross(rotation_error: float, translation_error_m: float, kind: str) -> bool:
+    """A wrong pose beyond this kind's GROSS_THRESHOLDS; one with no truth to measure it against
+    (NaN: a cross-place pose) is."""
+    max_re, max_te = GROSS_THRESHOLDS[kind]
+    return not (rotation_error <= max_re and translation_error_m <= max_te)
 
 
 def error_sigmas(T_est: np.ndarray, T_gt: np.ndarray, covariance: np.ndarray) -> float:

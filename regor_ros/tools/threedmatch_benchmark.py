@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core import ORIGIN, ConfigError, RegorConfig
+from ..core.metrics import GROSS_THRESHOLDS, is_gross
 from .bench_results import header, place, selected, write_results
 from .pairs_benchmark import CSV_FIELDS, Pair, evaluate_pair
 from .peers import DESCRIPTIONS
 from .register_cli import parse_overrides
 
 LISTS = ("3DMatch", "3DLoMatch")
-GROSS_DEG, GROSS_M = 20.0, 0.6   # a published pose this far off is unusable, not a near miss
 SAMPLE_SEED = 600                # fixes --sample's draw
 SHORT_NAMES = {  # scene folder -> the place name the other indoor sets use (bench_results.place)
     "7-scenes-redkitchen": "redkitchen", "sun3d-home_at-home_at_scan1_2013_jan_1": "home_at",
@@ -83,7 +83,7 @@ def as_pair(entry: dict, fragments: Fragments) -> Pair:
 
 def gross(row: dict) -> bool:
     """A wrong pose far from the truth (not a near miss of a loose ground truth)."""
-    return row.get("rotation_error_deg", np.nan) > GROSS_DEG or row.get("translation_error_m", np.nan) > GROSS_M
+    return is_gross(row.get("rotation_error_deg", np.nan), row.get("translation_error_m", np.nan), "indoor")
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -182,7 +182,8 @@ def run_threedmatch(args, argv, methods: list[str], parser) -> int:
     title = (header("regor_ros on the 3DMatch / 3DLoMatch test lists", argv) + f"Data: `{folder}`, {drawn}. "
              "Indoor preset (with --set overrides), fragments as the benchmark gives them (no added motion), "
              "FPFH included in the time. Success (RR): RE < 15 deg and TE < 30 cm. Published: the method's own "
-             f"gate passed the pose; gross: a published wrong pose > {GROSS_DEG:g} deg or > {GROSS_M:g} m off.")
+             f"gate passed the pose; gross: a published wrong pose > {GROSS_THRESHOLDS['indoor'][0]:g} deg or "
+             f"> {GROSS_THRESHOLDS['indoor'][1]:g} m off.")
     report = markdown(summary, rows, methods, title)
     write_results(args.out, "threedmatch", report, rows, THREEDMATCH_FIELDS, lambda *_: None)
     print(report)
