@@ -26,8 +26,9 @@ withheld, so the room left is left to the wrong side that the fit did not see. A
 by the benchmark's thresholds, within the gross ones: 5-10 degrees, 0.3-0.5 m off a ground truth
 that is itself loose by a few degrees) is a pose a local refinement brings in; its figures are a
 correct pose's, so a fit that must stop it too stops the correct poses with it. It is neither
-counted for a setting nor against it, and every table reports how many are published. Then each threshold is taken at its strictest among that fit and the
-fits with each training place left out in turn (``stable_fit``): a relaxation whose gain rests on
+counted for a setting nor against it, and every table reports how many are published. Then each
+threshold is taken at its strictest among that fit and the fits with each training place left out
+in turn (``stable_fit``): a relaxation whose gain rests on
 one place's runs is not taken, since the next place may put wrong poses in the room it opens (a
 threshold whose fitted value flips between folds is a weak check, and the strict side is the safe
 one). Leave one
