@@ -27,6 +27,12 @@ if not (os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE") or os.environ.get("FASTR
 DATA = Path(os.environ.get("REGOR_DATA", REPO.parent / "shared" / "data"))
 PAIRS = DATA / "pairs"
 DEMO_PAIR = "3dmatch_redkitchen_5_6_ds"  # bundled in demo/
+# The indoor gate before 2026-11-28's defaults (the solver's normal signs, free space 0.06, 65 agreeing
+# matches, no verification picks). The real cases of a check's tests were found under it, and under
+# it the check the test is about is the one that decides: today's stricter free-space bound stops
+# several of those wrong poses first, and a pick may replace them (test_visible_candidate.py).
+EARLIER_INDOOR = {"features.normals_toward_sensors": False, "estimation.visible_candidates": 0,
+                  "acceptance.max_free_space_violation": 0.06, "acceptance.min_feature_inliers": 65}
 
 
 def require_shared_data(what: str) -> None:

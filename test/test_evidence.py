@@ -2,7 +2,7 @@
 own uncertainty, on the real scan-to-map data where fixed thresholds failed."""
 import numpy as np
 import pytest
-from conftest import DATA, require_shared_data
+from conftest import DATA, EARLIER_INDOOR, require_shared_data
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
@@ -128,7 +128,7 @@ def test_a_room_of_another_building_is_rejected_as_chance_though_its_surfaces_co
     pairs = list(load_pairs(DATA / "pairs_scenes", None))
     pair = next(p for p in cross_place_pairs(pairs, 2)
                 if p.name == "3dmatch_studyroom_6_45 -> 3dmatch_hotel_umd3_32_35").moved(2)
-    config = RegorConfig.preset("indoor").replace({"seed": 2})
+    config = RegorConfig.preset("indoor").replace({**EARLIER_INDOOR, "seed": 2})
     source = prepare_cloud(pair.src, config, "source", viewpoint=pair.src_viewpoint)
     target = prepare_cloud(pair.tgt, config, "target", viewpoint=pair.tgt_viewpoint)
     result = register(source, target, config)

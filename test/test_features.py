@@ -111,7 +111,8 @@ def test_both_clouds_compare_under_one_normal_convention(kitchen_pair):
         register(src, prepare_cloud(tgt, cfg, viewpoint=(0, 0, 0)), cfg, source_viewpoint=None)
     # the raw scan follows the target: its normals keep the solver's signs, as the target's do
     assert register(src, fragment_without_sensor, cfg, source_viewpoint=(0, 0, 0)).transform.shape == (4, 4)
-    assert not prepare_cloud(src, RegorConfig(), viewpoint=(0, 0, 0)).normals_toward_sensors   # off by default
+    assert prepare_cloud(src, RegorConfig(), viewpoint=(0, 0, 0)).normals_toward_sensors   # on by default
+    assert not prepare_cloud(src, RegorConfig.preset("object"), viewpoint=(0, 0, 0)).normals_toward_sensors
     # preparing one registration's clouds apart: facing the sensors only if every viewpoint is known
     assert for_clouds_seen_from(cfg, (0, 0, 0), (1, 0, 0)).features.normals_toward_sensors
     assert not for_clouds_seen_from(cfg, (0, 0, 0), None).features.normals_toward_sensors

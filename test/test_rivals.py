@@ -2,7 +2,7 @@
 pose the evidence cannot tell from its rival withheld as ambiguous with both poses among the
 candidates."""
 import numpy as np
-from conftest import load_threedmatch
+from conftest import EARLIER_INDOOR, load_threedmatch
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
@@ -61,7 +61,7 @@ def test_a_lead_a_tie_often_gives_is_no_lead():
 
 
 def test_only_a_rival_that_would_pass_on_its_own_makes_a_pose_ambiguous():
-    acceptance = RegorConfig.preset("indoor").acceptance
+    acceptance = RegorConfig.preset("indoor").replace(EARLIER_INDOOR).acceptance
     # (inlier ratio, feature ratio, free space, opposite sides, turn, lead chance): a contender, one
     # that keeps a tenth of the overlap, one with too few agreeing matches, one in free space
     rows = [(0.6, 0.8, 0.01, 0.0, 90.0, 0.3), (0.1, 1.2, 0.0, 0.0, 90.0, 0.9),
@@ -104,7 +104,7 @@ def test_a_pose_slid_along_the_shelves_is_withheld_with_its_rival_among_the_cand
     # the pose does, with as many agreeing feature matches: a tie gives the pose its lead about one
     # time in three. Before the search's places were rivals, the slid pose was published
     src, tgt, T_gt = load_threedmatch("studyroom", 44, 42)
-    config = RegorConfig.preset("indoor").replace({"features.normals_toward_sensors": True})
+    config = RegorConfig.preset("indoor").replace({**EARLIER_INDOOR, "features.normals_toward_sensors": True})
     result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
     assert rotation_error_deg(result.transform, T_gt) < 5 and translation_error(result.transform, T_gt) > 0.6
     assert not result.accepted and result.verdict.failed == "max_ambiguity", result.reason
@@ -119,7 +119,7 @@ def test_a_box_room_turned_by_a_quarter_is_withheld_with_the_truth_among_the_can
     # matches vote for, is the truth, and the winner leads it by 12 independent agreeing matches
     # to 7: a lead a tie gives one time in five
     src, tgt, T_gt = load_threedmatch("studyroom", 45, 0)
-    config = RegorConfig.preset("indoor")
+    config = RegorConfig.preset("indoor").replace(EARLIER_INDOOR)
     result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
     assert rotation_error_deg(result.transform, T_gt) > 80
     assert not result.accepted and result.verdict.failed == "max_ambiguity", result.reason

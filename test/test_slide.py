@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import load_threedmatch
+from conftest import EARLIER_INDOOR, load_threedmatch
 
 from regor_ros.core import ORIGIN, RegorConfig, judge, prepare_cloud, register
 from regor_ros.core.gate.slide import weakest_support
@@ -58,7 +58,8 @@ def test_nothing_on_the_surfaces_is_no_support():
 
 def register_fragments(scene, source, target, normals_toward_sensors=True):
     src, tgt, T_gt = load_threedmatch(scene, source, target)
-    config = RegorConfig.preset("indoor").replace({"features.normals_toward_sensors": normals_toward_sensors})
+    config = RegorConfig.preset("indoor").replace({**EARLIER_INDOOR,
+                                                   "features.normals_toward_sensors": normals_toward_sensors})
     source, target = (prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt))
     result = register(source, target, config)
     return result, T_gt
@@ -74,7 +75,8 @@ def test_a_pose_slid_along_a_bookshelf_is_withheld_as_ambiguous():
     # first); without that check, the slide check withholds it on its own
     assert result.verdict.failed == "max_ambiguity", result.reason
     assert result.figures.weakest_support < 1
-    without_rivals = dataclasses.replace(RegorConfig.preset("indoor").acceptance, max_ambiguity=1.0)
+    without_rivals = dataclasses.replace(RegorConfig.preset("indoor").replace(EARLIER_INDOOR).acceptance,
+                                         max_ambiguity=1.0)
     assert judge(result.figures, without_rivals).failed == "min_weakest_support"
 
 

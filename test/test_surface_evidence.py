@@ -2,7 +2,7 @@
 lays its cells on the map far beyond what wrong poses refined there do; a slide along a corridor
 and a scan of another place do not; either test against chance carries a pose (judge)."""
 import numpy as np
-from conftest import DATA, require_shared_data
+from conftest import DATA, EARLIER_INDOOR, require_shared_data
 
 from regor_ros.core import Figures, RegorConfig, judge, prepare_cloud, register
 from regor_ros.core.estimate import plane_refine, plane_thresholds, point_refine
@@ -62,7 +62,8 @@ def test_a_wrong_indoor_pose_is_not_carried_by_its_surfaces():
     folder = DATA / "threedmatch"
     scene = next(p.name for p in folder.iterdir() if p.name.startswith("sun3d-hotel_umd"))
     source, target = np.load(folder / scene / "33.npy"), np.load(folder / scene / "30.npy")
-    result = register(source, target, RegorConfig.preset("indoor").replace({"max_free_space_both_sides": 1.0}))
+    config = RegorConfig.preset("indoor").replace({**EARLIER_INDOOR, "max_free_space_both_sides": 1.0})
+    result = register(source, target, config)
     assert not result.accepted and result.verdict.failed == "max_false_alarms", result.reason
     figures = result.figures
     assert figures.surface_cells_agreeing <= figures.surface_cells and figures.surface_chance <= 1

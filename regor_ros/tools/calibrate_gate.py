@@ -53,7 +53,6 @@ from pathlib import Path
 import numpy as np
 
 from ..core import Figures, RegorConfig, passes, stack
-from ..core.metrics import is_gross
 from .bench_results import place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
@@ -75,6 +74,7 @@ class Sample:
     @property
     def gross(self) -> bool:
         """A wrong pose of no use (metrics.is_gross), not a near miss."""
+        from ..core import is_gross  # here: --help answers without scipy.spatial (test_startup)
         return not self.correct and is_gross(*self.error, self.kind)
 
     @property

@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import ORIGIN, ConfigError, RegorConfig
-from ..core.metrics import GROSS_THRESHOLDS, is_gross
+from ..core import GROSS_THRESHOLDS, ORIGIN, ConfigError, RegorConfig, is_gross
 from .bench_results import header, place, selected, write_results
 from .pairs_benchmark import CSV_FIELDS, Pair, evaluate_pair
 from .peers import DESCRIPTIONS
