@@ -128,21 +128,6 @@ def test_bad_cloud_is_skipped_and_the_next_pair_still_registers(pairs_node, ros)
     assert pairs_node.proc.poll() is None
 
 
-def test_retries_run_in_the_node_and_a_rejected_pose_is_not_published(pairs_node, ros):
-    assert set_param(ros, "acceptance.retries", 2).successful
-    assert set_param(ros, "acceptance.min_inliers", 10 ** 6).successful   # no pose can pass
-    try:
-        src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
-        poses_before = len(ros.poses)
-        pose, status = ros.register_pair(src, tgt, TIMEOUT)
-        assert status is not None and not status["accepted"] and status["attempts"] == 3, status
-        assert pose is None and "min_inliers" in status["reason"]
-        assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
-    finally:
-        assert set_param(ros, "acceptance.min_inliers", 40).successful
-        assert set_param(ros, "acceptance.retries", 0).successful
-
-
 @contextmanager
 def parameters(ros, values: dict):
     """The node's parameters set to ``values`` for the block, then back to their defaults."""
@@ -154,6 +139,17 @@ def parameters(ros, values: dict):
     finally:
         for name in values:
             assert set_param(ros, name, defaults[name]).successful, name
+
+
+def test_retries_run_in_the_node_and_a_rejected_pose_is_not_published(pairs_node, ros):
+    # no pose can pass 10^6 inliers
+    with parameters(ros, {"acceptance.retries": 2, "acceptance.min_inliers": 10 ** 6}):
+        src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 24)
+        poses_before = len(ros.poses)
+        pose, status = ros.register_pair(src, tgt, TIMEOUT)
+        assert status is not None and not status["accepted"] and status["attempts"] == 3, status
+        assert pose is None and "min_inliers" in status["reason"]
+        assert not ros.spin_until(lambda: len(ros.poses) > poses_before, 2.0)
 
 
 def test_a_pose_slid_along_a_bookshelf_is_not_published_and_the_status_says_why(pairs_node, ros):
