@@ -5,11 +5,20 @@ import numpy as np
 from conftest import EARLIER_INDOOR, load_threedmatch
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
+from regor_ros.core import (
+    ORIGIN,
+    Figures,
+    RegorConfig,
+    RivalFigures,
+    ambiguity,
+    prepare_cloud,
+    register,
+)
 from regor_ros.core.gate.judge import judge, rival_chances
 from regor_ros.core.gate.rivals import dominant_direction, lead_chance, moved, quarter_turns, voted_translation
 from regor_ros.core.kernels import pooled_counts
 from regor_ros.core.metrics import rotation_error_deg, translation_error
+from regor_ros.core.places import another_answer
 
 
 def test_the_translation_most_matches_vote_for_is_found_among_many_wrong_matches():
@@ -153,3 +162,53 @@ def test_a_right_pose_in_a_room_with_no_twin_is_published():
     result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
     assert result.accepted and rotation_error_deg(result.transform, T_gt) < 2, result.reason
     assert result.ambiguity is None or result.ambiguity < 1e-3
+
+
+def test_a_pose_its_matches_single_out_among_every_other_answer_needs_no_count():
+    """min_feature_inliers stands in for lookalikes nobody measured; where every other answer the
+    pair offers was measured (whatever its free space) and a tie would rarely give the pose its
+    lead over it, the count is waived. Not where one rival is nearly as well supported, not without
+    a rival that is another answer, and not where free space was checked one way only."""
+    acceptance = RegorConfig.preset("indoor").acceptance
+    few = acceptance.min_feature_inliers // 2
+    # (inlier ratio, feature ratio, free space, opposite sides, turn, lead chance, source moved in tau)
+    beaten = [(0.5, 0.2, 0.3, 0.0, 90.0, 0.001, 20.0), (0.9, 0.4, 0.2, 0.0, 180.0, 0.03, 25.0),
+              (0.9, 0.9, 0.0, 0.0, 3.0, 0.6, 1.0)]   # the last is the same answer, less well pinned
+    close = [*beaten, (0.8, 0.9, 0.3, 0.0, 90.0, 0.3, 18.0)]  # in free space, but as well supported
+    same_only = beaten[2:]
+
+    def verdict(rows, free_space_target=0.0):
+        return judge(Figures(num_inliers=1000, fitness=0.5, surface_agreement=1.0, log10_false_alarms=-10.0,
+                             independent_agreeing=10, feature_inliers=few, free_space_source=0.0,
+                             free_space_target=free_space_target, weakest_support=5.0,
+                             rivals=RivalFigures.of(rows)), acceptance)
+
+    assert verdict(beaten).accepted and verdict(beaten).singled_out
+    for rows in (close, same_only):
+        assert not verdict(rows).accepted and verdict(rows).failed == "min_feature_inliers"
+    one_way = verdict(beaten, free_space_target=float("nan"))   # a map without a view: partial count
+    assert not one_way.accepted and "min_feature_inliers_partial" in one_way.reason
+
+
+def test_a_low_overlap_pose_its_matches_single_out_is_published_with_fewer_than_the_count():
+    # 3DLoMatch home_at 41 -> 32: the right pose has 69 agreeing matches, under the count; every
+    # twin and other place the search found, refined, has significantly fewer
+    src, tgt, T_gt = load_threedmatch("home_at", 41, 32)
+    config = RegorConfig.preset("indoor")
+    result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
+    assert rotation_error_deg(result.transform, T_gt) < 3 and translation_error(result.transform, T_gt) < 0.05
+    assert result.num_feature_inliers < config.acceptance.min_feature_inliers
+    assert result.accepted and result.verdict.singled_out and result.summary()["singled_out"], result.reason
+    assert all(lead <= config.acceptance.max_ambiguity for lead, far in zip(
+        result.rivals.lead_chance, another_answer(result.rivals.moved_tau, result.rivals.distance_deg), strict=True)
+        if far)
+
+
+def test_a_half_turned_room_with_as_many_matches_as_its_rivals_still_needs_the_count():
+    # 3DMatch studyroom 48 -> 22: the search's pose turns the room by 172 deg (2.2 m off); other
+    # answers, in free space, are as well supported: the count, not the rivals, withholds it
+    src, tgt, T_gt = load_threedmatch("studyroom", 48, 22)
+    config = RegorConfig.preset("indoor")
+    result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
+    assert rotation_error_deg(result.transform, T_gt) > 90
+    assert not result.accepted and result.verdict.failed == "min_feature_inliers" and not result.verdict.singled_out

@@ -130,6 +130,7 @@ class RegistrationResult:
             "attempts": self.attempts, "visibility": self.visibility.as_dict(),
             "ambiguity": self.ambiguity,
             "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "carried_by": self.verdict.carried_by,
+            "singled_out": self.verdict.singled_out,
             "gate": self.figures.columns(),
             "evidence": None if self.evidence is None else self.evidence.as_dict(),
             "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,

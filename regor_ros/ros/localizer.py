@@ -410,7 +410,8 @@ class Localizer:
         figures = (f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
                    f"{result.timings['total']:.2f} s")
         if result.accepted:
-            figures = f"carried by its {result.verdict.carried_by}, {figures}"
+            alone = ", which single it out among the other answers" if result.verdict.singled_out else ""
+            figures = f"carried by its {result.verdict.carried_by}{alone}, {figures}"
             self.logger.info(f"pose accepted: {figures}")
             answer = f"pose published ({figures})"
         else:

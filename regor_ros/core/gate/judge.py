@@ -10,8 +10,9 @@ The checks, in the order a reason names the first that fails:
 - beyond chance (not fitted): the overlap on the target's surfaces, and either the feature matches
   (evidence.py) or the surfaces themselves (surface_evidence.py) more than chance gives;
 - right rather than wrong (thresholds calibrated on held-out places): enough agreeing feature
-  matches (more when free space was not checked from both sides), free space (each side, and
-  both at once), opposite sides;
+  matches (more when free space was not checked from both sides; none when the matches single the
+  pose out among every other answer measured), free space (each side, and both at once), opposite
+  sides;
 - unique (not fitted): no rival (a symmetric twin, another place the search found) that the
   evidence cannot tell from the pose (rivals.py);
 - pinned (a unit, not fitted): at least one independent neighbourhood of surface faces every
@@ -81,13 +82,28 @@ def carried_by(f: Figures, a) -> str:
     return "surfaces" if _beyond_chance(f.surface_log10_false_alarms, a) else ""
 
 
+def singled_out(f: Figures, a):
+    """Whether the feature matches single the pose out: it leads every rival that is another
+    answer (its symmetric twins and the search's other places, each refined, whatever their
+    free space) beyond what a tie gives (lead chance at most acceptance.max_ambiguity). The
+    count min_feature_inliers stands in for lookalikes nobody measured (the same room turned, the
+    next bay of a shelf); where every lookalike the pair offers was measured and lost, the count
+    has nothing left to stop. False without such a rival."""
+    r = f.rivals
+    with np.errstate(invalid="ignore"):
+        other = another_answer(r.moved_tau, r.distance_deg)
+        lost = r.lead_chance <= np.expand_dims(np.asarray(a.max_ambiguity), -1)
+    return np.any(other, axis=-1) & np.all(~other | lost, axis=-1)
+
+
 def _needed_features(f: Figures, a):
-    """The feature count a pose needs: 0 where its surfaces carried it against chance and free
-    space was checked from both sides: a sparse scan has a few matches even when right, and the
-    count was fitted for the feature test's poses; where free space was not checked both ways,
-    the features must still stand on their own."""
-    carried = np.where(_beyond_chance(f.surface_log10_false_alarms, a), 0, a.min_feature_inliers)
-    return np.where(f.both_sides, carried, a.min_feature_inliers_partial)
+    """The feature count a pose needs: 0 where free space was checked from both sides and either
+    its surfaces carried it against chance (a sparse scan has a few matches even when right, and
+    the count was fitted for the feature test's poses) or its features single it out among every
+    other answer measured (singled_out); where free space was not checked both ways, the features
+    must still stand on their own."""
+    waived = _beyond_chance(f.surface_log10_false_alarms, a) | singled_out(f, a)
+    return np.where(f.both_sides, np.where(waived, 0, a.min_feature_inliers), a.min_feature_inliers_partial)
 
 
 def _features_reason(f: Figures, a) -> str:
@@ -195,6 +211,7 @@ class Verdict:
     failed: str = ""       # the name of the check that failed (Check.name); empty when accepted
     ambiguity: float | None = None  # judge.ambiguity: the largest lead chance of a rival that counts
     carried_by: str = ""   # the test against chance that carried an accepted pose: "feature matches" or "surfaces"
+    singled_out: bool = False  # its feature matches beat every other answer measured (min_feature_inliers waived)
 
 
 def judge(figures: Figures, acceptance) -> Verdict:
@@ -202,7 +219,8 @@ def judge(figures: Figures, acceptance) -> Verdict:
     index = int(first_failure(figures, acceptance))
     level = float(ambiguity(figures, acceptance))
     shown = None if np.isnan(level) else level
+    alone = bool(singled_out(figures, acceptance))
     if index == PASSED:
-        return Verdict(True, "", "", shown, carried_by(figures, acceptance))
+        return Verdict(True, "", "", shown, carried_by(figures, acceptance), alone)
     check = CHECKS[index]
-    return Verdict(False, check.reason(figures, acceptance), check.name, shown)
+    return Verdict(False, check.reason(figures, acceptance), check.name, shown, singled_out=alone)
