@@ -152,7 +152,8 @@ class AcceptanceConfig:
     min_fitness: float = param(0.10, "lowest fraction of source keypoints that are final inliers", 0.0, 1.0)
     min_feature_inliers: int = param(90, "fewest initial feature matches within initial.inlier_threshold of "
                                       "the pose; geometry alone aligns planes of unrelated rooms (calibrated: "
-                                      "regor-calibrate-gate)", 0, 1000000)
+                                      "regor-calibrate-gate). Waived for a pose its matches single out among "
+                                      "every other answer measured (status: singled_out)", 0, 1000000)
     min_feature_inliers_partial: int = param(95, "the same when free space was checked from one side or none (a "
                                               "viewpoint unknown and no map view: two clouds without viewpoints, or "
                                               "too little of the scan on what the map holds): wrong poses visibility "
