@@ -1,0 +1,46 @@
+"""Time one source tree of regor_ros on the lists' 200-pair sample, as regor-bench times a pair.
+
+regor-bench compares methods within one tree; this compares commits. Each tree is a `git archive`
+of a commit, run in turn on the same quiet machine, twice each, alternating (README.md). The pairs
+are regor-bench --threedmatch --sample 200's (sample200.json), FPFH included, seed 0, viewpoints at
+the fragments' origins, as the benchmark runs them.
+
+Usage: python time_across_commits.py TREE DATA OUT.json
+(TREE: the source tree; DATA: ../shared/data/threedmatch)
+"""
+import json
+import sys
+import time
+from pathlib import Path
+
+tree, data, out_path = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+sys.path.insert(0, tree)
+
+import numpy as np  # noqa: E402
+
+import regor_ros  # noqa: E402
+from regor_ros.core import RegorConfig  # noqa: E402
+from regor_ros.core.metrics import rotation_error_deg, translation_error  # noqa: E402
+from regor_ros.core.pipeline import for_clouds_seen_from, prepare_cloud, register  # noqa: E402
+
+assert regor_ros.__file__.startswith(tree), f"imported {regor_ros.__file__}, not the tree's"
+ORIGIN = np.zeros(3)
+config = for_clouds_seen_from(RegorConfig.preset("indoor").replace({"seed": 0}), ORIGIN, ORIGIN)
+rows = []
+for entry in json.loads(Path(__file__).with_name("sample200.json").read_text()):
+    folder = data / entry["scene"]
+    source, target = np.load(folder / f"{entry['j']}.npy"), np.load(folder / f"{entry['i']}.npy")
+    start = time.perf_counter()
+    result = register(prepare_cloud(source, config, "source", viewpoint=ORIGIN),
+                      prepare_cloud(target, config, "target", viewpoint=ORIGIN), config)
+    seconds = time.perf_counter() - start
+    truth = np.asarray(entry["T"])
+    correct = rotation_error_deg(result.transform, truth) < 15 and translation_error(result.transform, truth) < 0.3
+    rows.append({"name": entry["name"], "bench": entry["bench"], "ok": bool(correct),
+                 "acc": bool(result.accepted), "t": seconds})
+out_path.write_text(json.dumps(rows))
+for bench in ("3DMatch", "3DLoMatch"):
+    group = [r for r in rows if r["bench"] == bench]
+    print(f"  {bench}: RR {100 * np.mean([r['ok'] for r in group]):.1f} %, published correct "
+          f"{sum(r['ok'] and r['acc'] for r in group)}, wrong {sum(r['acc'] and not r['ok'] for r in group)}")
+print(f"{tree}: median {np.median([r['t'] for r in rows]):.3f} s over {len(rows)} pairs")
