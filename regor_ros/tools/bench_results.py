@@ -23,6 +23,8 @@ STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  
 GATE_COLUMNS = ["reason", "failed_check", "carried_by", *FIGURE_COLUMNS, "map_seen", "ambiguity", "candidate_margin"]
 LEVEL_NOTE = (" Gravity prior (--level): every cloud's z axis is up (level-mounted sensors on ground "
               "vehicles); `-noprior` methods run without it.")
+UNSEEN_NOTE = (" Viewpoints dropped (--no-viewpoints): neither sensor position is given, so free space is not "
+               "checked and the normals keep the solver's signs.")
 
 
 def gate_columns(figures: dict) -> dict:

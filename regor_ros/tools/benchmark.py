@@ -35,6 +35,8 @@ def main(argv=None) -> int:
         # a folder it would not read, or an override that lost its --set: refused, not silently dropped
         parser.error(f"{instead} reads no folders of pairs, but {', '.join(map(str, args.data))} was given "
                      "(each override needs its own --set NAME=VALUE)")
+    if args.no_viewpoints and (args.profile or instead not in (None, "--threedmatch")):
+        parser.error("--no-viewpoints is for pairs and --threedmatch (a map's view comes from its trajectory)")
     # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
     # known, so that --help and a mistyped option answer at once
     from ..core import warm_up
@@ -78,6 +80,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="the clouds come from level-mounted sensors in z-up frames (ground "
                              "vehicles): the gravity prior is on with each cloud's z axis up (a moved "
                              "source's up turns with it); regor-noprior runs without it")
+    parser.add_argument("--no-viewpoints", action="store_true",
+                        help="with pairs or --threedmatch: neither cloud's sensor position is given (a map "
+                             "without its trajectory, clouds from files): free space is not checked, the "
+                             "normals keep the solver's signs and the partial feature count applies")
     parser.add_argument("--mismatched", action="store_true",
                         help="instead: register each source against targets of other places (one per "
                              "place and seed) and count the poses each method's gate accepts: all wrong")

@@ -38,6 +38,7 @@ from .bench_results import (
     GATE_COLUMNS,
     LEVEL_NOTE,
     STAGES,
+    UNSEEN_NOTE,
     gate_columns,
     header,
     place,
@@ -97,6 +98,12 @@ class Pair:
                                    T_gt=None if self.T_gt is None else self.T_gt @ np.linalg.inv(M),
                                    src_viewpoint=viewpoint,
                                    src_up=None if self.src_up is None else M[:3, :3] @ self.src_up)
+
+    def unseen(self) -> Pair:
+        """The pair with neither sensor position known (--no-viewpoints: a map without its
+        trajectory, clouds from files): no free space is checked and the normals keep the solver's
+        signs."""
+        return dataclasses.replace(self, src_viewpoint=None, tgt_viewpoint=None)
 
     def swapped(self) -> Pair:
         """The target as the source and the source as the target; no true pose."""
@@ -311,6 +318,8 @@ def run_pairs(args, argv, methods: list[str], parser) -> int:
     pairs = [p for folder in args.data for p in load_pairs(folder, args.pairs)]
     if args.level:
         pairs = [dataclasses.replace(p, src_up=UP_Z, tgt_up=UP_Z) for p in pairs]
+    if args.no_viewpoints:
+        pairs = [p.unseen() for p in pairs]
     try:  # overrides apply to the presets of the kinds present
         overrides = parse_overrides(args.set)
         presets = {kind: RegorConfig.preset(kind).replace(overrides) for kind in {p.kind for p in pairs}}
@@ -338,7 +347,8 @@ def run_pairs(args, argv, methods: list[str], parser) -> int:
               f"{', '.join(map(str, seeds))}. Success: RE < 15° and TE < 30 cm (indoor, object), "
               "RE < 5° and TE < 60 cm (outdoor). RE/TE are means over successes; time is per pair "
               "with FPFH included (registration alone in brackets); `published correct / WRONG`: poses that "
-              "passed the method's own quality gate (published), correct and wrong." + LEVEL_NOTE * args.level)
+              "passed the method's own quality gate (published), correct and wrong." + LEVEL_NOTE * args.level
+              + UNSEEN_NOTE * args.no_viewpoints)
     report = markdown(summary, rows, methods, title)
     stem = "mismatched" if args.mismatched else "benchmark"
     write_results(args.out, stem, report, rows, CSV_FIELDS, lambda _, path: plots(summary, methods, path))
