@@ -170,3 +170,18 @@ def test_an_argument_the_mode_would_not_read_is_refused(mode, tmp_path, capsys):
         main([mode, str(tmp_path), "--set", "features.normals_toward_sensors=true",
               "estimation.visible_candidates=8", "--out", str(tmp_path / "out")])
     assert "each override needs its own --set" in capsys.readouterr().err
+
+
+def test_without_viewpoints_no_free_space_is_measured_and_the_report_says_so(tmp_path, capsys):
+    folder = pair_folder(tmp_path, TWO[:1])
+    out = tmp_path / "out"
+    assert main([str(folder), "--no-viewpoints", "--methods", "regor", "--out", str(out)]) == 0
+    row = next(csv.DictReader(open(out / "benchmark.csv")))
+    assert all(np.isnan(float(row[side] or "nan")) for side in ("free_space_source", "free_space_target"))
+    assert "Viewpoints dropped (--no-viewpoints)" in (out / "benchmark.md").read_text()
+    seen = tmp_path / "seen"
+    assert main([str(folder), "--methods", "regor", "--out", str(seen)]) == 0
+    assert not np.isnan(float(next(csv.DictReader(open(seen / "benchmark.csv")))["free_space_target"]))
+    with pytest.raises(SystemExit):
+        main(["--maps", str(tmp_path), "--no-viewpoints", "--out", str(out)])
+    assert "--no-viewpoints is for pairs and --threedmatch" in capsys.readouterr().err
