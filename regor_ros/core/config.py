@@ -154,7 +154,7 @@ class AcceptanceConfig:
                                       "the pose; geometry alone aligns planes of unrelated rooms (calibrated: "
                                       "regor-calibrate-gate). Waived for a pose its matches single out among "
                                       "every other answer measured (status: singled_out)", 0, 1000000)
-    min_feature_inliers_partial: int = param(95, "the same when free space was checked from one side or none (a "
+    min_feature_inliers_partial: int = param(150, "the same when free space was checked from one side or none (a "
                                               "viewpoint unknown and no map view: two clouds without viewpoints, or "
                                               "too little of the scan on what the map holds): wrong poses visibility "
                                               "would reject get through on features alone (calibrated with the "
@@ -301,8 +301,8 @@ class RegorConfig:
                                       refine_threshold=0.10 * s),
                 regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
                 estimation=EstimationConfig(inlier_threshold=0.10 * s, visible_candidates=0),
-                acceptance=AcceptanceConfig(min_feature_inliers=50, max_free_space_violation=0.06,
-                                            free_space_margin=0.15 * s),
+                acceptance=AcceptanceConfig(min_feature_inliers=50, min_feature_inliers_partial=95,
+                                            max_free_space_violation=0.06, free_space_margin=0.15 * s),
             )
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 
