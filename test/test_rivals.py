@@ -76,7 +76,8 @@ def test_only_a_rival_that_would_pass_on_its_own_makes_a_pose_ambiguous():
     rows = [(0.6, 0.8, 0.01, 0.0, 90.0, 0.3), (0.1, 1.2, 0.0, 0.0, 90.0, 0.9),
             (0.9, 0.3, 0.0, 0.0, 180.0, 0.8), (0.9, 0.9, 0.4, 0.0, 270.0, 0.7)]
     figures = Figures(num_inliers=1000, fitness=0.5, surface_agreement=1.0, log10_false_alarms=-10.0,
-                      independent_agreeing=10, feature_inliers=100, rivals=RivalFigures.of(rows))
+                      independent_agreeing=10, feature_inliers=100, free_space_source=0.0, free_space_target=0.0,
+                      rivals=RivalFigures.of(rows))
     np.testing.assert_array_equal(np.isnan(rival_chances(figures, acceptance)), [False, True, True, True])
     assert ambiguity(figures, acceptance) == 0.3
     alone = Figures(**{**vars(figures), "rivals": RivalFigures.of(rows[1:])})
