@@ -82,8 +82,8 @@ def _parser() -> argparse.ArgumentParser:
                              "source's up turns with it); regor-noprior runs without it")
     parser.add_argument("--no-viewpoints", action="store_true",
                         help="with pairs or --threedmatch: neither cloud's sensor position is given (a map "
-                             "without its trajectory, clouds from files): free space is not checked, the "
-                             "normals keep the solver's signs and the partial feature count applies")
+                             "without its trajectory, clouds not in their sensors' frames): free space is not "
+                             "checked, the normals keep the solver's signs and the partial feature count applies")
     parser.add_argument("--mismatched", action="store_true",
                         help="instead: register each source against targets of other places (one per "
                              "place and seed) and count the poses each method's gate accepts: all wrong")

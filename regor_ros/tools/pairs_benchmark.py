@@ -101,8 +101,8 @@ class Pair:
 
     def unseen(self) -> Pair:
         """The pair with neither sensor position known (--no-viewpoints: a map without its
-        trajectory, clouds from files): no free space is checked and the normals keep the solver's
-        signs."""
+        trajectory, clouds not in their sensors' frames): no free space is checked and the normals
+        keep the solver's signs."""
         return dataclasses.replace(self, src_viewpoint=None, tgt_viewpoint=None)
 
     def swapped(self) -> Pair:

@@ -168,10 +168,10 @@ def run_threedmatch(args, argv, methods: list[str], parser) -> int:
     for done, entry in enumerate(entries, start=1):
         try:
             pair = as_pair(entry, fragments)
-            if args.no_viewpoints:
-                pair = pair.unseen()
         except FileNotFoundError as exc:
             parser.error(str(exc))
+        if args.no_viewpoints:
+            pair = pair.unseen()
         pair_rows = [{**row, "bench": entry["bench"]} for row in evaluate_pair(pair, methods, config, None)]
         rows += pair_rows
         verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}"

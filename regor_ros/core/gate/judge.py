@@ -33,6 +33,11 @@ REVERSE_MAX_DEG = 10.0  # the reverse registration agrees when within these
 REVERSE_MAX_TAU = 3.0   # (translation in units of initial.inlier_threshold)
 
 
+def _per_pose(value):
+    """A pose's figure or threshold against its rivals: broadcast over the rivals' last axis."""
+    return np.expand_dims(value, -1)
+
+
 def rival_chances(f: Figures, a):
     """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: not another
     answer (places.another_answer: it leaves the source where the pose put it), failing a
@@ -41,17 +46,13 @@ def rival_chances(f: Figures, a):
     turn that keeps a tenth of the overlap is no second pose, however few matches the pose has.
     Over the last axis (the rivals)."""
     r = f.rivals
-
-    def per_pose(value):
-        return np.expand_dims(value, -1)
-
     with np.errstate(invalid="ignore"):
         counts = (another_answer(r.moved_tau, r.distance_deg)
-                  & ~(r.violation > per_pose(a.max_free_space_violation))
-                  & ~(r.opposite_sides > per_pose(a.max_opposite_sides))
-                  & (r.inlier_ratio * per_pose(f.num_inliers) >= per_pose(a.min_inliers))
-                  & (r.inlier_ratio * per_pose(f.fitness) >= per_pose(a.min_fitness))
-                  & (r.feature_ratio * per_pose(f.feature_inliers) >= per_pose(a.min_feature_inliers)))
+                  & ~(r.violation > _per_pose(a.max_free_space_violation))
+                  & ~(r.opposite_sides > _per_pose(a.max_opposite_sides))
+                  & (r.inlier_ratio * _per_pose(f.num_inliers) >= _per_pose(a.min_inliers))
+                  & (r.inlier_ratio * _per_pose(f.fitness) >= _per_pose(a.min_fitness))
+                  & (r.feature_ratio * _per_pose(f.feature_inliers) >= _per_pose(a.min_feature_inliers)))
     return np.where(counts, r.lead_chance, np.nan)
 
 
@@ -92,7 +93,7 @@ def singled_out(f: Figures, a):
     r = f.rivals
     with np.errstate(invalid="ignore"):
         other = another_answer(r.moved_tau, r.distance_deg)
-        lost = r.lead_chance <= np.expand_dims(np.asarray(a.max_ambiguity), -1)
+        lost = r.lead_chance <= _per_pose(a.max_ambiguity)
     return np.any(other, axis=-1) & np.all(~other | lost, axis=-1)
 
 
