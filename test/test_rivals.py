@@ -5,15 +5,7 @@ import numpy as np
 from conftest import EARLIER_INDOOR, load_threedmatch
 from scipy.spatial.transform import Rotation
 
-from regor_ros.core import (
-    ORIGIN,
-    Figures,
-    RegorConfig,
-    RivalFigures,
-    ambiguity,
-    prepare_cloud,
-    register,
-)
+from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
 from regor_ros.core.gate.judge import judge, rival_chances
 from regor_ros.core.gate.rivals import dominant_direction, lead_chance, moved, quarter_turns, voted_translation
 from regor_ros.core.kernels import pooled_counts
