@@ -20,7 +20,8 @@ FIGURE_COLUMNS = [f.name for f in dataclasses.fields(Figures)]
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
 # the gate's columns: its verdict, every figure it judged (core/gate/figures.py, which
 # regor-calibrate-gate reads back), and figures reported beside them
-GATE_COLUMNS = ["reason", "failed_check", "carried_by", *FIGURE_COLUMNS, "map_seen", "ambiguity", "candidate_margin"]
+GATE_COLUMNS = ["reason", "failed_check", "carried_by", *FIGURE_COLUMNS, "map_seen", "ambiguity", "candidate_margin",
+                "attempts"]
 LEVEL_NOTE = (" Gravity prior (--level): every cloud's z axis is up (level-mounted sensors on ground "
               "vehicles); `-noprior` methods run without it.")
 UNSEEN_NOTE = (" Viewpoints dropped (--no-viewpoints): neither sensor position is given, so free space is not "
@@ -28,13 +29,14 @@ UNSEEN_NOTE = (" Viewpoints dropped (--no-viewpoints): neither sensor position i
 
 
 def gate_columns(figures: dict) -> dict:
-    """The verdict, the gate's figures and the stage timings of a RegistrationResult.summary(), as
-    CSV columns (what regor-calibrate-gate reads)."""
+    """The verdict, the gate's figures, the stage timings and the registrations run (1 + the
+    acceptance.retries used) of a RegistrationResult.summary(), as CSV columns (what
+    regor-calibrate-gate reads)."""
     return {**{f"seconds_{stage}": figures["timings"][stage] for stage in STAGES},
             "reason": figures["reason"], "failed_check": figures["failed_check"], "carried_by": figures["carried_by"],
             **figures["gate"],
             "map_seen": figures["visibility"]["map_seen"], "ambiguity": figures["ambiguity"],
-            "candidate_margin": figures["candidate_margin"]}
+            "candidate_margin": figures["candidate_margin"], "attempts": figures["attempts"]}
 
 
 def selected(name: str, name_filter: str | None) -> bool:
