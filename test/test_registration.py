@@ -1,10 +1,11 @@
 """The whole core on real pairs, each source moved by a random rigid motion."""
 import numpy as np
 import pytest
-from conftest import DATA, EARLIER_INDOOR, load_pair, moved_pair, require_shared_data
+from conftest import DATA, EARLIER_INDOOR, load_pair, load_threedmatch, moved_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register
 from regor_ros.core.geometry import transform_points
+from regor_ros.core.initial import same_place
 from regor_ros.core.metrics import is_success, random_rigid_motion, rotation_error_deg, translation_error
 from regor_ros.core.pipeline import _register_once, _undo_turn, regrid_rotation
 
@@ -77,6 +78,24 @@ def test_a_rejected_pose_is_retried_and_the_first_attempt_reported(kitchen_pair)
     assert thrice.reason == once.reason and thrice.summary()["attempts"] == 3
     prepared = prepare_cloud(src, strict, "source")   # cannot be re-gridded
     assert register(prepared, tgt, strict.replace({"retries": 2})).attempts == 1
+
+
+def test_a_retry_does_not_publish_again_the_place_the_first_attempt_withheld():
+    # 3DLoMatch studyroom 65-24: the first attempt slides 1 m along the shelves and is withheld
+    # (too few agreeing matches); on a re-drawn grid that same place passes, so re-judging it
+    # would publish the slide
+    src, tgt, T_gt = load_threedmatch("studyroom", 65, 24)
+    cfg = RegorConfig.preset("indoor").replace({"seed": 0})
+    first = register(src, tgt, cfg)
+    assert not first.accepted and translation_error(first.transform, T_gt) > 0.6
+    turn = regrid_rotation(cfg.seed, 1)   # the first retry's grid, as register() draws it
+    target = prepare_cloud(tgt, cfg, "target", viewpoint=np.zeros(3))
+    turned = prepare_cloud(transform_points(turn, src), cfg, "source", viewpoint=np.zeros(3))
+    regridded = _undo_turn(_register_once(turned, target, cfg, None), turn)
+    assert regridded.accepted and same_place(regridded.transform, first.transform, cfg.initial.inlier_threshold)
+    retried = register(src, tgt, cfg.replace({"retries": 3}))
+    assert not retried.accepted and retried.attempts == 4 and retried.reason == first.reason
+    np.testing.assert_array_equal(retried.transform, first.transform)
 
 
 def test_a_retry_grid_with_too_few_points_ends_the_retries_quietly():
