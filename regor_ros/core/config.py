@@ -221,8 +221,9 @@ class AcceptanceConfig:
                                  "pose (within 10 deg, 3 tau); rejects rooms of other places that align (a second "
                                  "registration per accepted pose; deviation)")
     retries: int = param(0, "when the gate rejects, register a raw source again up to this many times on a "
-                          "re-drawn voxel grid (the source turned by a seeded rotation) and keep the first accepted "
-                          "pose; FPFH matches depend strongly on the grid (recall for latency; deviation)", 0, 20)
+                          "re-drawn voxel grid (the source turned by a seeded rotation) and keep the first pose "
+                          "accepted at another place than the first attempt's, whose verdict stands; FPFH matches "
+                          "depend strongly on the grid (recall for latency; deviation)", 0, 20)
 
 
 @dataclass
