@@ -80,6 +80,16 @@ def as_pair(entry: dict, fragments: Fragments) -> Pair:
                 ORIGIN, ORIGIN)
 
 
+def entry_rows(entry: dict, fragments: Fragments, methods: list[str], config: RegorConfig,
+               unseen: bool = False) -> list[dict]:
+    """Every method's row for one listed pair, each with its list (``bench``); ``unseen``: with
+    neither viewpoint given (--no-viewpoints)."""
+    pair = as_pair(entry, fragments)
+    if unseen:
+        pair = pair.unseen()
+    return [{**row, "bench": entry["bench"]} for row in evaluate_pair(pair, methods, config, None)]
+
+
 def gross(row: dict) -> bool:
     """A wrong pose far from the truth (not a near miss of a loose ground truth)."""
     return is_gross(row.get("rotation_error_deg", np.nan), row.get("translation_error_m", np.nan), "indoor")
@@ -167,16 +177,13 @@ def run_threedmatch(args, argv, methods: list[str], parser) -> int:
     start = time.perf_counter()
     for done, entry in enumerate(entries, start=1):
         try:
-            pair = as_pair(entry, fragments)
+            pair_rows = entry_rows(entry, fragments, methods, config, args.no_viewpoints)
         except FileNotFoundError as exc:
             parser.error(str(exc))
-        if args.no_viewpoints:
-            pair = pair.unseen()
-        pair_rows = [{**row, "bench": entry["bench"]} for row in evaluate_pair(pair, methods, config, None)]
         rows += pair_rows
         verdict = " ".join(f"{r['method']}:{'ok' if r['success'] else 'FAIL'}"
                            f"{'/published' if r['accepted'] is True else ''}" for r in pair_rows)
-        print(f"[{done}/{len(entries)} {time.perf_counter() - start:6.0f} s] {entry['bench']} {pair.name}: "
+        print(f"[{done}/{len(entries)} {time.perf_counter() - start:6.0f} s] {entry['bench']} {entry['name']}: "
               f"{verdict}", flush=True)
     summary = summarise(rows)
     drawn = f"a fixed sample of {len(entries)} pairs" if args.sample else f"{len(entries)} pairs"

@@ -14,8 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, ".")
 from regor_ros.core import RegorConfig, is_gross  # noqa: E402
-from regor_ros.tools.pairs_benchmark import evaluate_pair  # noqa: E402
-from regor_ros.tools.threedmatch_benchmark import THREEDMATCH_FIELDS, Fragments, as_pair, load_list  # noqa: E402
+from regor_ros.tools.threedmatch_benchmark import THREEDMATCH_FIELDS, Fragments, entry_rows, load_list  # noqa: E402
 
 DATA = Path("../shared/data/threedmatch")
 SHIPPED = Path("results/singled_out/threedmatch/threedmatch.csv")
@@ -28,13 +27,13 @@ def rows_by_pair(path: Path) -> dict:
 
 
 def figures(rows: list[dict]) -> str:
-    correct = [r for r in rows if r["success"] in ("True", True)]
-    shown = [r for r in rows if r["accepted"] in ("True", True)]
-    right = [r for r in shown if r in correct]
-    wrong = [r for r in shown if r not in correct]
+    correct = sum(r["success"] == "True" for r in rows)
+    shown = [r for r in rows if r["accepted"] == "True"]
+    wrong = [r for r in shown if r["success"] != "True"]
+    right = len(shown) - len(wrong)
     gross = sum(is_gross(float(r["rotation_error_deg"]), float(r["translation_error_m"]), "indoor") for r in wrong)
-    return (f"RR {100 * len(correct) / len(rows):.1f} %, published correct {len(right)} "
-            f"({100 * len(right) / len(correct):.1f} % of correct), WRONG {len(wrong)} (gross {gross})")
+    return (f"RR {100 * correct / len(rows):.1f} %, published correct {right} "
+            f"({100 * right / correct:.1f} % of correct), WRONG {len(wrong)} (gross {gross})")
 
 
 if __name__ == "__main__":
@@ -47,8 +46,7 @@ if __name__ == "__main__":
             writer.writeheader()
             for key, row in before.items():
                 if row["accepted"] == "True":
-                    writer.writerows({**r, "bench": key[0]}
-                                     for r in evaluate_pair(as_pair(entries[key], fragments), ["regor"], config, None))
+                    writer.writerows(entry_rows(entries[key], fragments, ["regor"], config))
     after = {**before, **rows_by_pair(AFTER)}
     for bench in ("3DMatch", "3DLoMatch"):
         print(f"{bench}: shipped (retries 0): {figures([r for k, r in shipped.items() if k[0] == bench])}")

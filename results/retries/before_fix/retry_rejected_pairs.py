@@ -2,7 +2,8 @@
 acceptance.retries=N (a scratch run, 2026-11-29, on 2cd0ced: before a retry was held to another
 place than the first attempt's). A retry runs only after a rejection, and a pair's first attempt
 is deterministic, so these rows replace the withheld rows of results/singled_out's run and every
-other row stands as it is. Run from the repository: python results/retries/before_fix/retry_rejected_pairs.py 3 OUT.csv
+other row stands as it is. To reproduce these rows, copy it into a checkout of 2cd0ced and run it
+there: python retry_rejected_pairs.py 3 OUT.csv (on later code it gives the fixed retries' rows).
 """
 import csv
 import sys
