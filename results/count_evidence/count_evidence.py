@@ -114,7 +114,7 @@ def measured_pairs(spy: Spy):
             if key in crossed:
                 moved = pair.moved(seed)
                 spy.calls.clear()
-                row = evaluate_pair(moved, ["regor"], CONFIG, seed)[0]
+                row = evaluate_pair(moved, ["regor"], moved.configured(CONFIG), seed)[0]
                 yield ("cross-place", pair.name, seed, row,
                        extra_figures(spy.calls[0], moved.src, moved.src_viewpoint, crossed[key]))
 

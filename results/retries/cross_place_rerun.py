@@ -24,6 +24,7 @@ config = RegorConfig.preset("indoor").replace({"acceptance.retries": 3})
 for seed in sorted({int(s) for s, _ in accepted}):
     for pair in cross_place_pairs(pairs, seed):
         if (str(seed), pair.name) in accepted:
-            row = evaluate_pair(pair.moved(seed), ["regor"], config, seed)[0]
+            moved = pair.moved(seed)
+            row = evaluate_pair(moved, ["regor"], moved.configured(config), seed)[0]
             print(f"seed {seed} {pair.name}: accepted before the fix; now accepted={row['accepted']}, "
                   f"{row['attempts']} attempts, failed check {row['failed_check'] or '-'}")
