@@ -14,6 +14,7 @@ voxel subtends, so a coarsely sampled near wall still hides what lies behind it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -63,6 +64,19 @@ class MapView:
         positions = np.zeros((0, 3)) if trajectory is None else thinned(trajectory, VIEW_SPACING * voxel)
         return cls(surface, voxel, resolution_deg, positions,
                    cKDTree(positions) if len(positions) else None)
+
+    @cached_property
+    def surface_tree(self) -> cKDTree:
+        """A kd-tree over the surface, built when first asked (only a pose that puts the map into a
+        scan's free space needs it: gate/changed_world.py)."""
+        return cKDTree(self.surface)
+
+    def holds(self, points: np.ndarray, tolerance: float) -> np.ndarray:
+        """Per point: whether the map's surface lies within ``tolerance`` [m] of it."""
+        if not len(points):
+            return np.zeros(0, dtype=bool)
+        distance, _ = self.surface_tree.query(points, distance_upper_bound=tolerance)
+        return distance <= tolerance
 
     def image(self, position: np.ndarray, reach: float, blur: int = 0) -> RangeImage:
         """The map seen from ``position`` out to ``reach``, read ``blur`` bins wider (RangeImage.build)."""

@@ -61,6 +61,15 @@ class RangeImage:
         seen, inside = self.classify(points, margin, margin_ratio)
         return int(seen.sum()), int(inside.sum())
 
+    def returns_along(self, points: np.ndarray) -> np.ndarray:
+        """Where the sensor's return lies along each point's direction (its bin's free depth out
+        from the viewpoint): what the sensor saw behind a point inside its free space. Points
+        nearer than MIN_RANGE have no direction; give none."""
+        offsets = np.asarray(points, dtype=np.float64) - self.viewpoint
+        ranges, index = _bins(offsets, self.resolution_deg, self.free_depth.shape[1])
+        depth = self.free_depth.ravel()[index].astype(np.float64)
+        return self.viewpoint + offsets * (depth / ranges)[:, None]
+
     def classify(self, points: np.ndarray, margin: float, margin_ratio: float, slack=0.0):
         """Per point: (lands on a seen bin, lies inside seen free space); ``slack`` (a number or
         one per point) widens the margin by how far the pose may have misplaced each point."""

@@ -14,7 +14,7 @@ from pathlib import Path
 EPILOG = """examples:
   regor-bench ../shared/data/pairs --methods regor,kiss-matcher --rotate 1 2 3
   regor-bench --threedmatch ../shared/data/threedmatch --sample 200
-  regor-bench --maps ../shared/data/maps --methods regor,kiss-matcher
+  regor-bench --maps ../shared/data/maps ../shared/data/revisit ../shared/data/xseason --methods regor,kiss-matcher
 
 data formats:
   pairs folder: pairs.json, a list of {"name", "kind": indoor|outdoor|object, optional
@@ -87,9 +87,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--mismatched", action="store_true",
                         help="instead: register each source against targets of other places (one per "
                              "place and seed) and count the poses each method's gate accepts: all wrong")
-    parser.add_argument("--maps", type=Path, metavar="DIR",
-                        help="instead: scan-to-map relocalization on every sequence folder in DIR "
-                             "(map.npy, queries.json, queries/<id>/), Regor and KISS-Matcher")
+    parser.add_argument("--maps", type=Path, nargs="+", metavar="DIR",
+                        help="instead: scan-to-map relocalization on every sequence folder in each DIR "
+                             "(map.npy, queries.json, queries/<id>/), Regor and KISS-Matcher; every query "
+                             "is also registered against every other sequence's map (cross-map)")
     parser.add_argument("--stress", action="store_true",
                         help="with --maps: each map enlarged with the other places' maps (the true place "
                              "still inside), queries single, thinned to every 4th point and fused: chance "

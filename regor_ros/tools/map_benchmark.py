@@ -87,6 +87,12 @@ class Query:
         return {"single": self.scan, "thinned": self.scan[::THINNING], "sequence": self.history}[which]
 
 
+def sequence_folders(folders: list[Path]) -> list[Path]:
+    """The sequence folders (each with queries.json) in each of ``folders``, in name order."""
+    return sorted((p for folder in folders for p in folder.iterdir() if (p / "queries.json").is_file()),
+                  key=lambda p: p.name)
+
+
 def load_sequence(folder: Path):
     """(map points, map trajectory (K, 4, 4) or None, [Query]) of one sequence folder."""
     queries = json.loads((folder / "queries.json").read_text())
@@ -267,17 +273,17 @@ def map_report(rows: list[dict], header: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_maps(folder: Path, methods: list[str], config: RegorConfig, out: Path, header: str,
+def run_maps(folders: list[Path], methods: list[str], config: RegorConfig, out: Path, header: str,
              name_filter: str | None = None, stress: bool = False) -> str:
-    """The map of every sequence under ``folder`` (whose name contains one of the comma-separated
+    """The map of every sequence under ``folders`` (whose name contains one of the comma-separated
     ``name_filter``) with every method, against its own queries and every other sequence's;
     writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
     maps, its queries single, thinned and fused (stress.md, .csv and .png)."""
-    sequences = sorted(str(p) for p in folder.iterdir() if (p / "queries.json").is_file())
+    sequences = [str(p) for p in sequence_folders(folders)]
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]
     if not maps:
         matching = f" matching {name_filter!r}" if name_filter else ""
-        raise SystemExit(f"{folder} holds no sequence folder with queries.json{matching}")
+        raise SystemExit(f"{', '.join(map(str, folders))} hold no sequence folder with queries.json{matching}")
     rows = []
     for sequence in maps:
         others = [s for s in sequences if s != sequence

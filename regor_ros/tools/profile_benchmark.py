@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core import RegorConfig, is_success, prepare_cloud, register
 from .bench_results import STAGES, header
-from .map_benchmark import INPUTS, load_sequence
+from .map_benchmark import INPUTS, load_sequence, sequence_folders
 from .pairs_benchmark import load_pairs
 
 PROFILE_SEED = 1
@@ -82,12 +82,12 @@ def profile_pairs(folders: list[Path], name_filter: str | None) -> list[Profiled
     return list(groups.values())
 
 
-def profile_maps(folder: Path) -> tuple:
+def profile_maps(folders: list[Path]) -> tuple:
     """(groups of map queries by input, [(sequence, map points, preparation seconds)])."""
     config = RegorConfig.preset("outdoor")
     groups = {which: Profiled(f"map queries, {which}") for which in INPUTS}
     maps = []
-    for sequence in sorted(p for p in folder.iterdir() if (p / "queries.json").is_file()):
+    for sequence in sequence_folders(folders):
         cloud, trajectory, queries = load_sequence(sequence)
         start = time.perf_counter()
         prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
@@ -100,7 +100,7 @@ def profile_maps(folder: Path) -> tuple:
     return [g for g in groups.values() if g.timings], maps
 
 
-def run_profile(folders: list[Path], maps: Path | None, name_filter: str | None, out: Path, argv) -> str:
+def run_profile(folders: list[Path], maps: list[Path] | None, name_filter: str | None, out: Path, argv) -> str:
     groups = profile_pairs(folders, name_filter)
     prepared_maps = []
     if maps is not None:

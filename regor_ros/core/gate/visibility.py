@@ -10,7 +10,8 @@ other cloud behind this one's walls, where free space cannot see it, but the mat
 seen from opposite sides.
 
 The seen free space each sensor contributes is a range image (range_image.py), read conservatively
-so that a correct pose is not blamed for sensing artefacts.
+so that a correct pose is not blamed for sensing artefacts; against a map, the conflicts the
+world's change explains do not count (changed_world.py).
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from ..cloud import PreparedCloud
 from ..config import AcceptanceConfig
 from ..geometry import transform_points
 from ..range_image import MIN_RANGE, seen_and_inside
+from .changed_world import unexplained_conflicts
 from .figures import NOT_MEASURED, Figures
 from .judge import FREE_SPACE_CHECKS, passes
 
@@ -43,6 +45,8 @@ class VisibilityFigures:
     target_seen: int = 0
     map_seen: float | None = None   # against a map: fraction of the scan's keypoints on bins the map fills
     shake_bins: int = 0             # a fused sequence's views were read this many bins wider (shake.py)
+    map_changed: float | None = None  # against a map: fraction of the map's keypoints the scan saw in its free
+    #                                  space, but where the scan saw the map's surfaces behind (changed_world.py)
 
     @property
     def both_sides(self) -> bool:
@@ -68,7 +72,7 @@ class VisibilityFigures:
         return {"source_violation": self.source_violation, "target_violation": self.target_violation,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
                 "target_seen": self.target_seen, "map_seen": self.map_seen, "worst": self.worst,
-                "both_sides": self.both_sides, "shake_bins": self.shake_bins}
+                "both_sides": self.both_sides, "shake_bins": self.shake_bins, "map_changed": self.map_changed}
 
 
 def _fraction(seen: int, inside: int, min_seen: int) -> float | None:
@@ -117,13 +121,15 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
                                points, normals, gate.free_space_min_seen)
     return VisibilityFigures(source_side[0], target_side[0], sides, source_side[1], target_side[1],
                              source_side[2] if source.map_view is not None else target_side[2],
-                             max(source.shake_bins, target.shake_bins))
+                             max(source.shake_bins, target.shake_bins),
+                             source_side[3] if target.map_view is not None else target_side[3])
 
 
 def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, gate: AcceptanceConfig,
           near_only: bool, slack=None):
     """(fraction of ``other``'s keypoints inside ``seer``'s seen free space or None, how many
-    landed on seen bins, fraction of them seen: for a map side). ``near_only``: test only the
+    landed on seen bins, fraction of them seen: for a map side, fraction inside that the world's
+    change explains: when ``other`` is a map, changed_world.py). ``near_only``: test only the
     other's keypoints within the seer's sensor range (the other may be a large map). ``slack``
     (pose_slack) widens each point's margin by its distance from the source's origin."""
     margin, ratio, min_seen = gate.free_space_margin, gate.free_space_margin_ratio, gate.free_space_min_seen
@@ -140,8 +146,14 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
             points = other.points[kernels.within_any(other.points, transform_points(
                 np.linalg.inv(T_seer_other), seer.viewpoints), reach)]
         points = transform_points(T_seer_other, points)
-        seen, inside = seen_and_inside(seer.views, points, margin, ratio, widen(points))
-        return (inside / seen if seen >= min_seen else None), seen, None
+        if other.map_view is None:
+            seen, inside = seen_and_inside(seer.views, points, margin, ratio, widen(points))
+            return (inside / seen if seen >= min_seen else None), seen, None, None
+        seen, inside, unexplained = unexplained_conflicts(seer.views, points, margin, ratio, widen(points),
+                                                          other.map_view, np.linalg.inv(T_seer_other))
+        if seen < min_seen:
+            return None, seen, None, None
+        return unexplained / seen, seen, None, (inside - unexplained) / seen
     if seer.map_view is not None and other.views:
         # the map seen from where the pose puts the other cloud's sensors, out to their reach
         points = transform_points(T_seer_other, other.points)
@@ -150,8 +162,8 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
         seen, inside = seen_and_inside(images, points, margin, ratio, widen(points))
         fraction_seen = seen / max(len(points), 1)
         counts = seen >= min_seen and fraction_seen >= gate.map_view_min_seen
-        return (inside / seen if counts else None), seen, fraction_seen
-    return None, 0, None
+        return (inside / seen if counts else None), seen, fraction_seen, None
+    return None, 0, None, None
 
 
 def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
