@@ -246,6 +246,17 @@ class GravityConfig:
     max_slope: float = param(10.0, "steepest ground the robot drives on, for the height band [deg]", 0.0, 89.0)
 
 
+@dataclass
+class VerificationConfig:
+    """Checking a pose found elsewhere (core/verify.py): how far the data may move it for it to
+    count as right. The presets take the benchmarks' success tolerances."""
+
+    max_correction: float = param(0.3, "largest translation by which the local refinement may move a given pose "
+                                   "and it still be verified (the correction is reported either way) [m]", 0.0, 1e6)
+    max_correction_deg: float = param(15.0, "largest turn by which the local refinement may move a given pose and "
+                                       "it still be verified [deg]", 0.0, 180.0)
+
+
 def parse_up(text: str):
     """The unit up vector written as 'x y z' (or 'x, y, z'), or None for 'unknown'."""
     if text.strip().lower() == "unknown":
@@ -271,6 +282,7 @@ class RegorConfig:
     estimation: EstimationConfig = field(default_factory=EstimationConfig)
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
     gravity: GravityConfig = field(default_factory=GravityConfig)
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
     seed: int = param(51, "seed of the random generator; the same seed gives the same pose", 0, 2**31 - 1)
 
     @classmethod
@@ -291,6 +303,7 @@ class RegorConfig:
                 acceptance=AcceptanceConfig(min_feature_inliers=5, min_feature_inliers_partial=60,
                                             max_free_space_violation=0.03,
                                             free_space_margin=0.9),
+                verification=VerificationConfig(max_correction=0.6, max_correction_deg=5.0),
             )
         if name == "object":
             s = 0.06  # object scale relative to indoor
@@ -304,6 +317,7 @@ class RegorConfig:
                 estimation=EstimationConfig(inlier_threshold=0.10 * s, visible_candidates=0),
                 acceptance=AcceptanceConfig(min_feature_inliers=50, min_feature_inliers_partial=95,
                                             max_free_space_violation=0.06, free_space_margin=0.15 * s),
+                verification=VerificationConfig(max_correction=0.3 * s),
             )
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
 

@@ -182,6 +182,20 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, targe
     return T
 
 
+def plane_refined(refined: PointRefinement, source: np.ndarray, target: NeighbourGrid, target_normals: np.ndarray,
+                  inlier_threshold: float, voxel_size: float, clamp: Clamp = None) -> PointRefinement:
+    """The point-to-plane refinement of a point-level ``refined`` pose, and its inliers within
+    ``inlier_threshold`` (tau_e). It is kept when it puts at least as many source keypoints within
+    one voxel of the target: the judge is the data at the keypoints' resolution, so a near miss a
+    few degrees off is brought in, and a slide along a corridor or onto a repeated facade that fits
+    worse is not taken."""
+    fine = plane_refine(refined.transform, source, target, target_normals,
+                        plane_thresholds(inlier_threshold, voxel_size), clamp)
+    candidate = inliers_at(fine, source, target, inlier_threshold)
+    # keypoints within a voxel of the target, from the residuals found within tau_e
+    return candidate if (candidate.distances < voxel_size).sum() >= (refined.distances < voxel_size).sum() else refined
+
+
 def inliers_at(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float) -> PointRefinement:
     """The keypoints ``T`` brings within ``threshold`` of a target keypoint: the final inliers."""
     distances, nearest = target.nearest_within(transform_points(T, source), threshold)

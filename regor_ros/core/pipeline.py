@@ -12,9 +12,7 @@ from .config import RegorConfig
 from .errors import RegistrationError
 from .estimate import (
     agreeing,
-    inliers_at,
-    plane_refine,
-    plane_thresholds,
+    plane_refined,
     point_refine,
     point_refine_all,
     pose_covariance,
@@ -230,13 +228,28 @@ def _normals_toward_sensors(source: SeenCloud | PreparedCloud, target: SeenCloud
 
 
 def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
-              may_face_sensors: bool) -> PreparedCloud:
+              may_face_sensors: bool, describe: bool) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
+        if describe and not cloud.described:
+            raise RegistrationError(f"{name} was prepared without descriptors (to verify a pose); "
+                                    "prepare it with prepare_cloud to register it")
         return cloud
-    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance)
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance,
+                   describe=describe)
+
+
+def prepare_pair(source: SourceInput, target: CloudInput, config: RegorConfig, source_viewpoint=FROM_CLOUD,
+                 target_viewpoint=FROM_CLOUD, describe: bool = True):
+    """(the raw source, or the prepared one given; both clouds prepared; whether their normals face
+    their sensors): the inputs of register() and verify() checked and prepared as one pair.
+    ``describe``: compute the descriptors (a search needs them; checking a given pose does not)."""
+    raw_source, raw_target = _raw(source, source_viewpoint, "source"), _raw(target, target_viewpoint, "target")
+    toward = _normals_toward_sensors(raw_source, raw_target, config)
+    return (raw_source, _prepared(raw_source, config, "source", toward, describe),
+            _prepared(raw_target, config, "target", toward, describe), toward)
 
 
 def register(source: SourceInput, target: CloudInput, config: RegorConfig | None = None, *,
@@ -274,10 +287,8 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
     config = (config or RegorConfig()).validate()
     start = time.perf_counter()
     # prepared once: the target for every attempt, the source also for the reverse check
-    raw_source, raw_target = _raw(source, source_viewpoint, "source"), _raw(target, target_viewpoint, "target")
-    toward = _normals_toward_sensors(raw_source, raw_target, config)
-    prepared_source = _prepared(raw_source, config, "source", toward)
-    target = _prepared(raw_target, config, "target", toward)
+    raw_source, prepared_source, target, toward = prepare_pair(source, target, config, source_viewpoint,
+                                                               target_viewpoint)
     if search_region is not None:
         target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
@@ -422,18 +433,8 @@ def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config:
 
 def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
                   prior: GravityPrior | None):
-    """The point-to-plane refinement of the estimator's pose, and its inliers within tau_e. The
-    refined pose is kept when it puts at least as many source keypoints within one voxel of the
-    target as the estimator's: the judge is the data at the keypoints' resolution, so a near
-    miss a few degrees off is brought in, and a slide along a corridor or onto a repeated facade
-    that fits worse is not taken."""
-    est, voxel = config.estimation, config.features.voxel_size
-    T = refined.transform
-    fine = plane_refine(T, source.points, target.neighbours, target.normals,
-                        plane_thresholds(est.inlier_threshold, voxel), prior and prior.clamp)
-    candidate = inliers_at(fine, source.points, target.neighbours, est.inlier_threshold)
-    # keypoints within a voxel of the target, from the residuals found within tau_e
-    return candidate if (candidate.distances < voxel).sum() >= (refined.distances < voxel).sum() else refined
+    return plane_refined(refined, source.points, target.neighbours, target.normals,
+                         config.estimation.inlier_threshold, config.features.voxel_size, prior and prior.clamp)
 
 
 def _visible_instead(refined, selected: str, candidates: list, source: PreparedCloud, target: PreparedCloud,
