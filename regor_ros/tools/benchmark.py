@@ -14,6 +14,7 @@ from pathlib import Path
 EPILOG = """examples:
   regor-bench ../shared/data/pairs --methods regor,kiss-matcher --rotate 1 2 3
   regor-bench --threedmatch ../shared/data/threedmatch --sample 200
+  regor-bench --verify ../shared/data/pairs --maps ../shared/data/xseason
   regor-bench --maps ../shared/data/maps ../shared/data/revisit ../shared/data/xseason --methods regor,kiss-matcher
 
 data formats:
@@ -31,7 +32,9 @@ def main(argv=None) -> int:
     instead = next((flag for flag, given in (("--threedmatch", args.threedmatch), ("--maps", args.maps),
                                              ("--map-scaling", args.map_scaling), ("--batch", args.batch))
                     if given), None)
-    if args.data and instead and not args.profile:
+    if args.verify and instead not in (None, "--maps"):
+        parser.error(f"--verify checks poses on folders of pairs and --maps, not with {instead}")
+    if args.data and instead and not (args.profile or args.verify):
         # a folder it would not read, or an override that lost its --set: refused, not silently dropped
         parser.error(f"{instead} reads no folders of pairs, but {', '.join(map(str, args.data))} was given "
                      "(each override needs its own --set NAME=VALUE)")
@@ -49,6 +52,8 @@ def main(argv=None) -> int:
     if args.profile:
         print(run_profile(args.data, args.maps, args.pairs, args.out, argv))
         return 0
+    if args.verify:
+        return _verify_main(args, argv, parser)
     if args.threedmatch:
         return run_threedmatch(args, argv, _methods(args.methods or "regor,kiss-matcher", METHODS, parser), parser)
     if args.maps or args.map_scaling or args.batch:
@@ -103,6 +108,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--batch", type=Path, metavar="DIR",
                         help="instead: regor-batch's throughput on every within-sequence pair of query "
                              "scans of the maps folder DIR, serially and on --workers local workers")
+    parser.add_argument("--verify", action="store_true",
+                        help="instead: verify given poses (the truth, nudged, made wrong ones, KISS-Matcher's) on "
+                             "the pairs of the given folders and the queries of --maps, against ICP's fitness and "
+                             "KISS-Matcher's inlier count")
     parser.add_argument("--profile", action="store_true",
                         help="instead: register the pairs of the given folders (and with --maps, every map "
                              "query) under cProfile and report the stage medians and the functions with the "
@@ -129,6 +138,26 @@ def _methods(requested: str | None, available, parser) -> list[str]:
         parser.error(f"unknown or unsupported method {(unknown or [requested])[0]!r} here; choose from "
                      f"{', '.join(available)}")
     return methods
+
+
+def _verify_main(args, argv, parser) -> int:
+    """--verify: given poses on the pair folders and the --maps queries, with --set overrides."""
+    from ..core import ConfigError
+    from .bench_results import header
+    from .register_cli import parse_overrides
+    from .verify_benchmark import run_verify
+
+    if not args.data and not args.maps:
+        parser.error("--verify needs folders of pairs, --maps folders, or both")
+    try:
+        overrides = parse_overrides(args.set)
+    except ConfigError as exc:
+        raise SystemExit(f"regor-bench: {exc}") from None
+    print(run_verify(args.data, args.maps or [], overrides, args.pairs, args.out, header(
+        "regor_ros verification benchmark", argv) + "Each pair or map query's poses, right and wrong, checked by "
+        "verify() with the preset of its kind; success tolerances: RE < 15 deg and TE < 30 cm indoors, "
+        "RE < 5 deg and TE < 60 cm outdoors (verification.max_correction)."))
+    return 0
 
 
 def _map_main(args, argv, parser) -> int:

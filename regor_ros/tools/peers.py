@@ -84,15 +84,21 @@ def open3d_fgr(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> Me
     return _o3d_result(result, src, tgt, time.perf_counter() - start)
 
 
-def kiss_matcher_pose(source: np.ndarray, target: np.ndarray, voxel_size: float):
-    """(T_target_source, seconds, its valid flag) of KISS-Matcher (pip kiss-matcher) on raw clouds."""
+def kiss_matcher_solution(source: np.ndarray, target: np.ndarray, voxel_size: float):
+    """(T_target_source, seconds, its valid flag, its final inlier count) of KISS-Matcher (pip
+    kiss-matcher) on raw clouds: the count is what its users threshold to trust a pose."""
     import kiss_matcher as km
     matcher = km.KISSMatcher(km.KISSMatcherConfig(voxel_size))
     start = time.perf_counter()
     solution = matcher.estimate(np.asarray(source, np.float32), np.asarray(target, np.float32))
     seconds = time.perf_counter() - start
     return (to_matrix(np.asarray(solution.rotation), np.asarray(solution.translation).reshape(3)), seconds,
-            bool(solution.valid))
+            bool(solution.valid), int(matcher.get_num_final_inliers()))
+
+
+def kiss_matcher_pose(source: np.ndarray, target: np.ndarray, voxel_size: float):
+    """(T_target_source, seconds, its valid flag) of KISS-Matcher on raw clouds."""
+    return kiss_matcher_solution(source, target, voxel_size)[:3]
 
 
 def kiss_matcher(src, tgt, raw_src, raw_tgt, config: RegorConfig, seed: int) -> MethodResult:
