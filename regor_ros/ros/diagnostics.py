@@ -1,4 +1,5 @@
-"""The node's health as diagnostic_msgs/DiagnosticArray on /diagnostics, for robot monitors.
+"""The node's health as diagnostic_msgs/DiagnosticArray on /diagnostics, for robot monitors, and the
+watchdog's verdict on the localization stack's pose as a second status.
 
 Localization stacks watch /diagnostics (rqt_robot_monitor, diagnostic aggregators), not a JSON
 string. One status, refreshed at a steady rate: OK while the last pose was published, WARN while
@@ -12,10 +13,15 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
 STATUS_NAME = "regor_ros: registration"
+WATCHDOG_NAME = "regor_ros: localization watchdog"
+# the watchdog's states (ros/watchdog.py) as levels: a pose that could not be checked is stale
+WATCHDOG_LEVELS = {"verified": DiagnosticStatus.OK, "suspect": DiagnosticStatus.WARN,
+                   "lost": DiagnosticStatus.ERROR, "unchecked": DiagnosticStatus.STALE}
 
 
 @dataclass
@@ -32,6 +38,7 @@ class Health:
     lifecycle: str = "unconfigured"        # the node's lifecycle state, or why configure failed
     map_from_file: bool = False            # the target is a map file, not target_cloud
     ready_after_s: float | None = None     # from the process's start to ready to register (imports included)
+    watchdog: Any = None                   # the watchdog's latest Check (ros/watchdog.py), None before one
 
     def ready_line(self, kernels_s: float) -> str:
         """The log line of a node ready to register: how long after its start, and the parts."""
@@ -94,7 +101,23 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
                             values=[KeyValue(key=k, value=_value(v)) for k, v in values.items()])
 
 
+def watchdog_status(check, node_name: str) -> DiagnosticStatus:
+    """The watchdog's latest check: OK verified (the correction reported), WARN suspect, ERROR lost,
+    STALE not checked (the reason)."""
+    message = {"verified": "tracked pose verified", "suspect": f"tracked pose suspect: {check.reason}",
+               "lost": f"lost ({check.failures} failed checks in a row): {check.reason}; relocalizing",
+               "unchecked": f"tracked pose not checked: {check.reason}"}[check.state]
+    values = {"failures in a row": check.failures, "scan stamp": check.scan_stamp, "pose stamp": check.pose_stamp}
+    if check.correction is not None:
+        values.update({"correction m": check.correction[0], "correction deg": check.correction[1]})
+    return DiagnosticStatus(level=WATCHDOG_LEVELS[check.state], name=WATCHDOG_NAME, message=message,
+                            hardware_id=node_name, values=[KeyValue(key=k, value=_value(v)) for k, v in values.items()])
+
+
 def diagnostic_array(health: Health, node_name: str, stamp) -> DiagnosticArray:
-    array = DiagnosticArray(status=[diagnostic_status(health, node_name)])
+    statuses = [diagnostic_status(health, node_name)]
+    if health.watchdog is not None:
+        statuses.append(watchdog_status(health.watchdog, node_name))
+    array = DiagnosticArray(status=statuses)
     array.header.stamp = stamp
     return array

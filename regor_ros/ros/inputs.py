@@ -54,7 +54,14 @@ class Register:
     target: Cloud | None    # None against the prepared map
 
 
-Job = PrepareMap | Register
+@dataclass(frozen=True)
+class CheckPose:
+    """The watchdog's check of the stack's pose on the newest source (ros/watchdog.py)."""
+
+    source: Cloud
+
+
+Job = PrepareMap | Register | CheckPose
 
 
 class InputBuffer:

@@ -1,5 +1,5 @@
 """The node's work without ROS: the inputs, the map in use, the scans and odometry to fuse, and the
-worker thread that prepares maps and registers.
+worker thread that prepares maps, registers and checks the stack's pose (ros/watchdog.py).
 
 register_node converts messages and hands them here, and publishes what this reports (each
 registration's Outcome, the map as prepared). One lock guards the state: callbacks (the
@@ -29,12 +29,14 @@ from ..core import (
     attached_pose,
     prepare_cloud,
     register,
+    verify,
     warm_up,
 )
 from ..io.map_file import load_map_file
 from .diagnostics import Health
 from .imu_up import ImuUp
-from .inputs import Cloud, InputBuffer, Job, MapKey, PrepareMap, Register
+from .inputs import CheckPose, Cloud, InputBuffer, Job, MapKey, PrepareMap, Register
+from .watchdog import LOST, Check, TrackedPose, Watchdog
 
 if TYPE_CHECKING:
     from ..core import RegistrationResult
@@ -85,10 +87,10 @@ class Localizer:
     logging's), ``on_outcome`` and ``on_map`` publish (they run on the worker or a service thread)."""
 
     def __init__(self, config, settings, logger, on_outcome: Callable[[Outcome], None],
-                 on_map: Callable[[PreparedCloud, str], None]):
+                 on_map: Callable[[PreparedCloud, str], None], on_check: Callable[[Check], None]):
         self.lock = threading.Condition()
         self.config, self.settings = config, settings
-        self.logger, self._on_outcome, self._on_map = logger, on_outcome, on_map
+        self.logger, self._on_outcome, self._on_map, self._on_check = logger, on_outcome, on_map, on_check
         self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
                       "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
         self.health = Health(counters=self.stats, map_from_file=bool(settings.map_file))
@@ -108,6 +110,11 @@ class Localizer:
         self._history = ScanHistory(self._history_capacity())   # scans and odometry, for accumulation
         self._imu = ImuUp() if self.settings.imu_topic else None  # the source's up, for the gravity prior
         self._warned: dict[str, float] = {}            # kind of bad input -> when it was last logged
+        self.watchdog = Watchdog()                     # the stack's poses and the checks' run of failures
+        self._check_due = False                        # verify_rate's timer asked for a check
+        self._checked = 0                              # the serial of the last source checked: each once
+        self._relocalizing = False                     # the watchdog asked for the next registration
+        self.health.watchdog = None
 
     # --- lifecycle ---
 
@@ -177,6 +184,17 @@ class Localizer:
         with self.lock:
             if self._imu is not None:
                 self._imu.add(stamp, orientation_xyzw, acceleration)
+
+    def track_pose(self, pose: TrackedPose) -> None:
+        """The localization stack's pose (tracked_pose), for the watchdog."""
+        with self.lock:
+            self.watchdog.track(pose)
+
+    def request_check(self) -> None:
+        """verify_rate's tick: check the stack's pose on the newest source (map mode, a map ready)."""
+        with self.lock:
+            self._check_due = True
+            self.lock.notify_all()
 
     def set_hint(self, hint: Hint) -> None:
         with self.lock:
@@ -290,7 +308,12 @@ class Localizer:
     def _next_job(self) -> Job | None:
         if not self.active:
             return None
-        return self._inputs.next_job(self.settings, self.config.features, self._map_key, self.map is not None)
+        job = self._inputs.next_job(self.settings, self.config.features, self._map_key, self.map is not None)
+        source = self._inputs.source
+        if (self._check_due and self.map is not None and source is not None and source.serial > self._checked
+                and not isinstance(job, PrepareMap)):
+            return CheckPose(source)
+        return job
 
     def _work(self) -> None:
         while True:
@@ -304,12 +327,20 @@ class Localizer:
                 config, settings, hint = self.config, self.settings, self._hint
                 if isinstance(job, Register):
                     self._inputs.taken(job)
+                if isinstance(job, CheckPose):
+                    self._check_due, self._checked = False, job.source.serial
             if isinstance(job, PrepareMap):
                 self._prepare_map(job, config, settings)
+            elif isinstance(job, CheckPose):
+                self._check(job.source, config, settings)
             else:
                 answer = self._register(job, config, settings, hint)
                 with self.lock:
                     self._answer = answer
+                    if self._relocalizing:  # the watchdog's relocalization: the robot found, or not yet
+                        self._relocalizing, self._inputs.relocalize_after = False, None
+                        if answer.accepted:
+                            self.watchdog.found()
                     self.lock.notify_all()
 
     def _prepare_map(self, job: PrepareMap, config, settings) -> None:
@@ -328,6 +359,35 @@ class Localizer:
                     self.map, self._map_key, self.map_frame = None, key, ""
             self.health.last_error = f"map not usable: {exc}"
             self.bad_input(f"map skipped: {exc}")
+
+    def _check(self, src: Cloud, config, settings) -> None:
+        """The watchdog's check of the stack's pose at the source's stamp, on the source fused as a
+        relocalization fuses it; lost, the next source is registered (Watchdog)."""
+        with self.lock:
+            pose, why = self.watchdog.pose_for(src.stamp, self.map_frame, settings.max_pose_age)
+            target = self.map
+        result = None
+        if pose is not None:
+            T_map_sensor = pose.transform @ settings.base_extrinsic() if settings.base_frame else pose.transform
+            source, _ = self._source_input(src, settings)
+            viewpoint = {"source_viewpoint": settings.viewpoints()[0]} if source is src.points else {}
+            try:
+                result = verify(source, target, T_map_sensor, config, **viewpoint)
+            except RegistrationError as exc:
+                why = f"not checked: {exc}"
+        with self.lock:
+            if self._stopping:
+                return
+            check = (self.watchdog.unchecked(why, src.stamp) if result is None else
+                     self.watchdog.judged(result, src.stamp, pose.stamp, settings.lost_after))
+            if check.state == LOST and self._inputs.relocalize_after is None:
+                self._relocalizing, self._inputs.relocalize_after = True, src.serial - 1
+            self.health.watchdog = check
+            self._on_check(check)
+        if check.state == LOST:
+            self.logger.error(f"lost: {check.failures} failed checks in a row ({check.reason}); relocalizing")
+        elif result is not None and not result.accepted:
+            self.logger.warning(f"tracked pose suspect: {check.reason}")
 
     def _gravity(self, config, settings, src: Cloud):
         """The configuration with the source's up direction from the IMU at the scan's stamp (or

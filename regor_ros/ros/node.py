@@ -8,6 +8,7 @@ ros/localizer.py's, so the executor keeps answering parameters and services whil
 """
 from __future__ import annotations
 
+import json
 from collections import deque
 
 import rclpy
@@ -35,6 +36,7 @@ from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 from .spin import PoolExecutor, spin
 from .transport import use_large_data_profile
+from .watchdog import Check, TrackedPose
 
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
 QOS_CHECK_PERIOD_S = 0.5  # how often auto QoS inputs look at their publishers
@@ -54,7 +56,7 @@ class RegisterNode(LifecycleNode):
         super().__init__("register_node")
         config, settings = declare_parameters(self)
         self.localizer = Localizer(config, settings, self.get_logger(), self._while_up(self._publish_outcome),
-                                   self._while_up(self._publish_map))
+                                   self._while_up(self._publish_map), self._while_up(self._publish_check))
         self.health = self.localizer.health   # the one Health of the node's life, the localizer's to update
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._entities = []      # (destroy, entity) of what configure created, for cleanup
@@ -138,6 +140,10 @@ class RegisterNode(LifecycleNode):
         subscription(Odometry, "odometry", self._on_odometry, stream_profile(100))   # 100 Hz odometry
         if settings.imu_topic:  # the source's up, for the gravity prior
             subscription(Imu, settings.imu_topic, self._on_imu, stream_profile(200))
+        if settings.verify_rate:  # the watchdog: the stack's pose, checked at verify_rate
+            tracked = Odometry if settings.tracked_pose_type == "odometry" else PoseWithCovarianceStamped
+            subscription(tracked, "tracked_pose", self._on_tracked_pose, stream_profile(100))
+            keep(self.destroy_timer, self.create_timer(1.0 / settings.verify_rate, self.localizer.request_check))
         # their own callback groups: a call waits for a registration or a map while scans keep arriving
         keep(self.destroy_service, self.create_service(Trigger, "~/relocalize", self._on_relocalize,
                                                        callback_group=MutuallyExclusiveCallbackGroup()))
@@ -193,6 +199,10 @@ class RegisterNode(LifecycleNode):
         """The scan frame's pose in the odometry frame at the message's stamp."""
         pose = messages.matrix_from_pose(msg.pose.pose) @ self.localizer.settings.odometry_extrinsic()
         self.localizer.add_odometry(messages.stamp_seconds(msg.header), pose)
+
+    def _on_tracked_pose(self, msg) -> None:
+        self.localizer.track_pose(TrackedPose(messages.stamp_seconds(msg.header), msg.header.frame_id,
+                                              messages.matrix_from_pose(msg.pose.pose)))
 
     def _on_imu(self, msg: Imu) -> None:
         self.localizer.add_imu(*messages.imu_reading(msg))
@@ -266,6 +276,10 @@ class RegisterNode(LifecycleNode):
         if settings.publish_aligned_cloud:
             self.aligned_pub.publish(xyz_to_cloud(transform_points(result.transform, outcome.source.points),
                                                   header))
+
+    def _publish_check(self, check: Check) -> None:
+        """The watchdog's verdict on the stack's pose, on status (its diagnostics go with the node's)."""
+        self.status_pub.publish(String(data=json.dumps(check.as_dict())))
 
     def _publish_map(self, prepared: PreparedCloud, frame: str) -> None:
         """The map as the node uses it (downsampled, ground kept), latched for RViz."""

@@ -28,6 +28,7 @@ from .input_qos import QOS_KINDS
 
 MODE_CHOICES = ("pairs", "map")
 REGISTRATION_CHOICES = ("continuous", "on_demand")
+TRACKED_POSE_TYPES = ("pose_with_covariance", "odometry")
 
 
 @dataclass
@@ -109,6 +110,17 @@ class NodeSettings:
                                  "'x, y, z, roll, pitch, yaw' [m, rad] (the sensor's mounting; this node does "
                                  "not look up tf)")
 
+    verify_rate: float = param(0.0, "map mode, the watchdog: checks per second of the localization stack's pose "
+                                "on tracked_pose against the newest scan (fused as relocalization fuses it); the "
+                                "verdict goes out on status and /diagnostics; 0 = off (read only)", 0.0, 100.0)
+    tracked_pose_type: str = param("pose_with_covariance", "the message type on tracked_pose: pose_with_covariance "
+                                    "(geometry_msgs/PoseWithCovarianceStamped, AMCL's amcl_pose) or odometry "
+                                    "(nav_msgs/Odometry in the map frame) (read only)")
+    lost_after: int = param(3, "the watchdog's failed checks in a row after which the robot is lost: the node "
+                             "relocalizes globally and publishes the pose it finds on pose_with_covariance", 1, 1000)
+    max_pose_age: float = param(0.5, "the watchdog checks the tracked pose nearest the scan's stamp only when it is "
+                                 "at most this far from it [s]", 0.0, 3600.0)
+
     imu_topic: str = param("", "sensor_msgs/Imu topic giving the source sensor's up direction for the gravity "
                             "prior (gravity.source_up follows it; gravity.target_up must be set): the reported "
                             "orientation, or the mean acceleration over imu_window when there is none; '' = "
@@ -151,9 +163,9 @@ def parse_pose(text: str, name: str) -> np.ndarray:
 
 
 CHOICES = {"mode": MODE_CHOICES, "registration": REGISTRATION_CHOICES, "source_qos": QOS_KINDS, "target_qos": QOS_KINDS,
-           "preset": PRESETS, **CORE_CHOICES}
+           "tracked_pose_type": TRACKED_POSE_TYPES, "preset": PRESETS, **CORE_CHOICES}
 READ_ONLY = {"autostart", "preset", "source_qos", "target_qos", "diagnostics_period", "map_file", "map_frame",
-             "map_trajectory_file", "map_cache", "map_cache_dir", "imu_topic"}
+             "map_trajectory_file", "map_cache", "map_cache_dir", "imu_topic", "verify_rate", "tracked_pose_type"}
 
 
 def _descriptor(name: str, field: dataclasses.Field, value) -> ParameterDescriptor:
@@ -209,6 +221,8 @@ def make_settings(values: dict) -> NodeSettings:
     settings.imu_extrinsic()
     if settings.map_file and settings.mode != "map":
         raise ConfigError(f"map_file={settings.map_file!r} is for mode=map (a pair's target comes on target_cloud)")
+    if settings.verify_rate and settings.mode != "map":
+        raise ConfigError("verify_rate: the watchdog checks a pose in a map (mode=map)")
     if settings.initial_guess_min_radius > settings.initial_guess_max_radius:
         raise ConfigError("initial_guess_min_radius is larger than initial_guess_max_radius")
     return settings
