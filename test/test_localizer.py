@@ -24,7 +24,7 @@ class Recorder:
     """The node's side: what the localizer reports."""
 
     def __init__(self):
-        self.outcomes, self.maps = [], []
+        self.outcomes, self.maps, self.checks = [], [], []
 
     def wait_for_outcomes(self, count: int):
         deadline = time.monotonic() + WAIT_S
@@ -37,7 +37,8 @@ class Recorder:
 def started(**settings):
     recorder = Recorder()
     localizer = Localizer(RegorConfig.preset("indoor"), make_settings(settings), logging.getLogger("localizer"),
-                          recorder.outcomes.append, lambda prepared, frame: recorder.maps.append((prepared, frame)))
+                          recorder.outcomes.append, lambda prepared, frame: recorder.maps.append((prepared, frame)),
+                          recorder.checks.append)
     localizer.configure()
     localizer.start()
     localizer.set_active(True)

@@ -105,3 +105,29 @@ def test_the_stress_set_enlarges_each_map_with_the_other_places_and_thins_the_sc
     assert int(rows[0]["map_points"]) > 2 * own   # the other place's map is in it
     assert not any(r["accepted"] == "True" and r["success"] == "False" for r in rows), rows
     assert "Stress (--stress)" in (tmp_path / "out" / "stress.md").read_text()
+
+
+def test_sequences_of_one_place_are_no_cross_map_queries():
+    from regor_ros.tools.map_benchmark import one_place
+    assert one_place("fastlio_avia_hku2", "avia_hku2_loop")   # one walk, one frame: a true pose exists there
+    assert not one_place("fastlio_avia_hku2", "scaloam_mulran_kaist03")
+    assert not one_place("eth_gazebo_summer_winter", "avia_hku2_loop")
+
+
+def test_verify_mode_checks_right_and_wrong_poses_against_the_peers_checks(tmp_path):
+    folder = short_sequence(tmp_path)
+    out = tmp_path / "out"
+    assert main(["--verify", str(DATA / "pairs"), "--pairs", "redkitchen_5_6", "--maps", str(folder.parent),
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader(open(out / "verify.csv")))
+    cases = {(r["set"], r["case"], r["input"]) for r in rows}
+    assert cases == {("pairs", "3dmatch_redkitchen_5_6_ds", "pair"),
+                     *((SEQUENCE, query, which) for query in QUERIES for which in ("single", "sequence"))}
+    poses = [r["pose"] for r in rows if r["case"] == "scan_000005" and r["input"] == "single"]
+    assert poses[:2] == ["true", "nudged"] and "slide" in poses and "kiss-matcher" in poses
+    assert all(r["verified"] == "False" for r in rows if r["right"] == "False")   # no wrong pose verified
+    found = [r for r in rows if r["pose"] in ("true", "nudged") and r["case"] != "scan_000107"]
+    assert found and all(r["verified"] == "True" for r in found)   # 107 alone is too sparse (register: withheld)
+    assert all(0 <= float(r["icp_fitness"]) <= 1 for r in rows)
+    report = (out / "verify.md").read_text()
+    assert "| outdoor | ICP fitness |" in report and "| indoor | verify() |" in report

@@ -32,7 +32,7 @@ _HOMES = {
     "scan_history": ("AccumulationLimits", "ScanHistory"),
     "search_region": ("SearchRegion",),
     "sequence": ("ScanSequence",),
-    "verify": ("Verification", "verify"),
+    "verification": ("Verification", "verify"),
     "viewpoint": ("ORIGIN", "parse_viewpoint"),
 }
 _HOME_OF = {name: module for module, names in _HOMES.items() for name in names}

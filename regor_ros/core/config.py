@@ -248,7 +248,7 @@ class GravityConfig:
 
 @dataclass
 class VerificationConfig:
-    """Checking a pose found elsewhere (core/verify.py): how far the data may move it for it to
+    """Checking a pose found elsewhere (core/verification.py): how far the data may move it for it to
     count as right. The presets take the benchmarks' success tolerances."""
 
     max_correction: float = param(0.3, "largest translation by which the local refinement may move a given pose "
