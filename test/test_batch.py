@@ -223,3 +223,39 @@ def test_a_closing_worker_s_failed_heartbeat_is_not_logged_a_running_one_s_is(ca
     assert [(r.getMessage(), r.levelno) for r in caplog.records] == [
         ("Failed to communicate with scheduler during heartbeat.", logging.ERROR),
         ("Unexpected exception during heartbeat. Closing worker.", logging.ERROR)]
+
+
+def test_a_list_with_poses_is_verified(scans, tmp_path):
+    """A SLAM back end's loop closures come with their poses: each row's pose is verified."""
+    truth = {n: np.loadtxt(SCANS / f"scan_{n:06d}" / "gt.txt") for n in (1, 3, 5)}
+
+    def between(target, source, shift=0.0):
+        T = np.linalg.inv(truth[target]) @ truth[source]
+        T[0, 3] += shift
+        return " ".join(f"{v:.9f}" for v in T.ravel())
+
+    path = tmp_path / "closures.csv"
+    path.write_text("id,source,target,pose\n"
+                    f"right-1-3,{scan(3)},{scan(1)},{between(1, 3)}\n"
+                    f"right-3-5,{scan(5)},{scan(3)},{between(3, 5)}\n"
+                    f"wrong-1-3,{scan(3)},{scan(1)},{between(1, 3, shift=5.0)}\n"
+                    f"bad,{scan(3)},{scan(1)},1 2 3\n")
+    out = tmp_path / "verified.jsonl"
+    done = run_batch(path, "--scans", scans, "--out", out, "--workers", 1, "--no-progress")
+    assert done.returncode == 1, done.stderr   # the bad row has an error
+    rows = {r["id"]: r for r in rows_of(out)}
+    assert rows["right-1-3"]["accepted"] and rows["right-3-5"]["accepted"], rows
+    wrong = rows["wrong-1-3"]
+    assert not wrong["accepted"] and wrong["reason"], wrong
+    assert wrong["given"][0][3] == rows["right-1-3"]["given"][0][3] + 5.0   # the pose as given, and the refined one
+    assert "expected 16 numbers" in rows["bad"]["error"]
+
+
+def test_a_pose_column_reads_a_matrix_or_a_quaternion(tmp_path):
+    path = tmp_path / "pairs.jsonl"
+    path.write_text('{"source": "a.npy", "target": "b.npy", "pose": [[1,0,0,2],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}\n'
+                    '{"source": "a.npy", "target": "b.npy", "pose": "2 0 0 0 0 0 1"}\n'
+                    '{"source": "a.npy", "target": "b.npy"}\n')
+    rows = read_pairs(path)
+    assert rows[0].pose == rows[1].pose and rows[0].pose[3] == 2.0
+    assert rows[2].pose is None and not rows[2].error

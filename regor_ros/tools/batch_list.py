@@ -3,7 +3,9 @@
 Columns: ``source`` and ``target`` (cloud files, relative to the scans folder when one is given,
 else to the list's own folder), optional ``id`` (default: the row's line number; give ids when the
 list may be edited between a run and its resumption), ``source_viewpoint`` / ``target_viewpoint``
-('x, y, z', 'none' for a map or an aggregated cloud, default the cloud's origin) and ``preset``.
+('x, y, z', 'none' for a map or an aggregated cloud, default the cloud's origin), ``preset`` and
+``pose``: the candidate's T_target_source (16 numbers, the 4x4 row by row, or 7: x y z qx qy qz qw;
+a SLAM back end's loop closure), which the row then verifies instead of registering.
 A row that cannot run (an empty path, a bad viewpoint, an unknown preset) is kept with the reason,
 so that it gets an error row in the output; a list that cannot be read at all raises ListError.
 """
@@ -14,9 +16,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..core import PRESETS, ConfigError, parse_viewpoint
+import numpy as np
 
-COLUMNS = ("id", "source", "target", "source_viewpoint", "target_viewpoint", "preset")
+from ..core import PRESETS, ConfigError, RegistrationError, parse_viewpoint
+from .verify_cli import pose_from_numbers
+
+COLUMNS = ("id", "source", "target", "source_viewpoint", "target_viewpoint", "preset", "pose")
 
 
 class ListError(Exception):
@@ -34,6 +39,7 @@ class PairRow:
     target_viewpoint: object
     preset: str
     error: str = ""              # why the row cannot run; empty when it can
+    pose: tuple[float, ...] | None = None  # the 4x4 to verify, row by row; None: register the pair
 
     def clouds(self):
         """The (path, viewpoint) of each cloud: what identifies a prepared cloud."""
@@ -51,7 +57,7 @@ def _viewpoint_text(value) -> str:
 
 def _row(fields: dict[str, object], line: int, folder: Path, default_preset: str) -> PairRow:
     text = {k: ("" if fields.get(k) is None else str(fields.get(k)).strip())
-            for k in ("id", "source", "target", "preset")}
+            for k in ("id", "source", "target", "preset", "pose")}
     row_id = text["id"] or str(line)
     source, target = text["source"], text["target"]
     preset = text["preset"] or default_preset
@@ -64,9 +70,26 @@ def _row(fields: dict[str, object], line: int, folder: Path, default_preset: str
             raise ConfigError(f"preset {preset!r} is not one of {', '.join(PRESETS)}")
         viewpoints = [parse_viewpoint(_viewpoint_text(fields.get(f"{side}_viewpoint", "auto")), f"{side}_viewpoint")
                       for side in ("source", "target")]
-    except ConfigError as exc:
+        pose = _pose(fields.get("pose"), text["pose"])
+    except (ConfigError, RegistrationError) as exc:
         return PairRow(row_id, source, target, None, None, None, None, preset, str(exc))
-    return PairRow(row_id, source, target, folder / source, folder / target, viewpoints[0], viewpoints[1], preset)
+    return PairRow(row_id, source, target, folder / source, folder / target, viewpoints[0], viewpoints[1], preset,
+                   pose=pose)
+
+
+def _pose(value, text: str) -> tuple[float, ...] | None:
+    """The row's pose cell (numbers separated by spaces or commas; JSON may also give a list, or a
+    4x4 list of rows) as the 16 numbers of its 4x4, or None when empty."""
+    if value is None or not text:
+        return None
+    if isinstance(value, (list, tuple)):
+        numbers = np.asarray(value, dtype=np.float64).ravel()
+    else:
+        try:
+            numbers = np.array([float(v) for v in text.replace(",", " ").split()])
+        except ValueError:
+            raise ConfigError(f"pose {text!r}: not numbers") from None
+    return tuple(pose_from_numbers(numbers, "pose").ravel().tolist())
 
 
 def _json_lines(path: Path):

@@ -1,4 +1,5 @@
-"""What a batch worker does with one pair: register it, with each cloud prepared once per process.
+"""What a batch worker does with one pair: register it (or verify the pose the row gives), with each
+cloud prepared once per process.
 
 Candidate lists share clouds (a scan is checked against each place recognition proposes for it),
 and preparing a cloud (voxel grid, normals, FPFH) is a fair share of a registration. Each worker
@@ -16,10 +17,11 @@ import time
 from collections import OrderedDict
 
 import numba
+import numpy as np
 from distributed.core import Status
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from ..core import PreparedCloud, RegorConfig, for_clouds_seen_from, prepare_cloud, register
+from ..core import PreparedCloud, RegorConfig, for_clouds_seen_from, prepare_cloud, register, verify
 from ..io.cloud_io import read_cloud
 from .batch_list import PairRow
 
@@ -109,8 +111,13 @@ def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int
             kwargs = {"source_viewpoint": row.source_viewpoint}
         else:
             (source, source_reused), kwargs = clouds.get(row.source_path, row.source_viewpoint, config, "source"), {}
-        result = register(source, target, config, **kwargs)
-        out.update(result_row(result), reused=int(source_reused) + int(target_reused), error="")
+        if row.pose is not None:   # a candidate that comes with its pose: verified, not searched
+            given = np.array(row.pose).reshape(4, 4)
+            checked = verify(source, target, given, config, **kwargs)
+            out.update({"transform": checked.transform.tolist(), "given": given.tolist(), **checked.summary()})
+        else:
+            out.update(result_row(register(source, target, config, **kwargs)))
+        out.update(reused=int(source_reused) + int(target_reused), error="")
     except FileNotFoundError as exc:
         out.update(accepted=False, error=f"{exc.filename}: no such file")
     except (ValueError, OSError, MemoryError) as exc:  # RegistrationError and ConfigError are ValueErrors

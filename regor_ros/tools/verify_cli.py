@@ -27,21 +27,28 @@ the target frame) or 'x y z qx qy qz qw' (7 numbers, quaternion scalar last).
 formats: {', '.join(FORMATS)}"""
 
 
-def read_pose(path: str) -> np.ndarray:
-    """T_target_source from a file of 16 numbers (4x4) or 7 (x y z qx qy qz qw)."""
+def pose_from_numbers(numbers, name: str) -> np.ndarray:
+    """T_target_source from 16 numbers (the 4x4, row by row) or 7 (x y z qx qy qz qw);
+    RegistrationError naming ``name`` otherwise (verify() checks that it is rigid)."""
     from scipy.spatial.transform import Rotation
-    try:
-        numbers = np.loadtxt(path, comments="#", ndmin=1).ravel()
-    except (OSError, ValueError) as exc:
-        raise RegistrationError(f"{path}: not a pose ({exc})") from None
+    numbers = np.asarray(numbers, dtype=np.float64).ravel()
     if len(numbers) == 16:
         return numbers.reshape(4, 4)
     if len(numbers) == 7 and np.isfinite(numbers).all() and np.linalg.norm(numbers[3:]) > 1e-9:
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = Rotation.from_quat(numbers[3:]).as_matrix(), numbers[:3]
         return T
-    raise RegistrationError(f"{path}: expected 16 numbers (a 4x4 matrix) or 7 (x y z qx qy qz qw), "
+    raise RegistrationError(f"{name}: expected 16 numbers (a 4x4 matrix) or 7 (x y z qx qy qz qw), "
                             f"got {len(numbers)}")
+
+
+def read_pose(path: str) -> np.ndarray:
+    """T_target_source from a file of 16 numbers (4x4) or 7 (x y z qx qy qz qw)."""
+    try:
+        numbers = np.loadtxt(path, comments="#", ndmin=1)
+    except (OSError, ValueError) as exc:
+        raise RegistrationError(f"{path}: not a pose ({exc})") from None
+    return pose_from_numbers(numbers, path)
 
 
 def main(argv=None) -> int:
