@@ -140,3 +140,16 @@ def ros():
     yield client
     client.destroy_node()
     rclpy.try_shutdown()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def no_node_outlives_the_suite():
+    """Every register_node a test or fixture started is stopped by it, whatever happened: one left
+    running (a test that failed or skipped between its start and its stop) is killed here and the
+    suite fails, so it never leaves a node behind."""
+    from ros_helpers import NodeProcess, kill_survivors
+    yield
+    alive = kill_survivors(NodeProcess.started)
+    if alive:
+        pytest.fail(f"{len(alive)} register_node process(es) outlived their tests: "
+                    + ", ".join(node.log.name for node in alive))

@@ -11,7 +11,10 @@ TIMEOUT = 90.0
 
 
 class NodeProcess:
-    """The installed executable, started through the install space's setup script."""
+    """The installed executable, started through the install space's setup script. Every one
+    started is remembered: the suite fails if one outlives its test (conftest.py)."""
+
+    started: list["NodeProcess"] = []
 
     def __init__(self, install: Path, *ros_args: str, env=None):
         exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
@@ -20,6 +23,7 @@ class NodeProcess:
         self.log = open(install.parent / f"node-{time.monotonic_ns()}.log", "w+")
         self.proc = subprocess.Popen(["bash", "-c", command], stdout=self.log,
                                      stderr=subprocess.STDOUT, env=env)
+        NodeProcess.started.append(self)
 
     def output(self) -> str:
         self.log.flush()
@@ -35,6 +39,15 @@ class NodeProcess:
             self.proc.kill()
             raise
         return time.monotonic() - start
+
+
+def kill_survivors(nodes) -> list:
+    """The nodes still running, each killed: what a suite must not leave behind."""
+    alive = [node for node in nodes if node.proc.poll() is None]
+    for node in alive:
+        node.proc.kill()
+        node.proc.wait(timeout=10)
+    return alive
 
 
 def call(client, srv_type, name, request, resend_every=None):

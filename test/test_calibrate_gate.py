@@ -108,10 +108,17 @@ def test_a_csv_without_the_gate_figures_is_refused_in_one_line(tmp_path, capsys)
     path = tmp_path / "old.csv"
     path.write_text("method,kind,pair,success,num_inliers,fitness,feature_inliers,error\n"
                     "regor,indoor,3dmatch_kitchen_1_2,True,500,0.5,90,\n")
-    with pytest.raises(SystemExit) as exit_code:
-        main([str(path)])
-    assert exit_code.value.code == 2
+    assert main([str(path)]) == 2
     assert "no column 'surface_agreement'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name, says", [("missing.csv", "cannot be read"), ("notes.md", "not a regor-bench CSV")])
+def test_a_file_that_is_not_a_benchmark_csv_gets_one_line(tmp_path, capsys, name, says):
+    if name.endswith(".md"):
+        (tmp_path / name).write_text("# notes\n\nsome text\n")
+    assert main([str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert says in err and err.count("\n") == 1 and "Traceback" not in err
 
 
 def test_the_both_sides_bound_is_as_strict_as_the_correct_runs_allow():

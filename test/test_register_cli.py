@@ -1,5 +1,6 @@
 """regor-register end to end: every reader, a real pair from files, errors, the picture."""
 import json
+import os
 import shutil
 import struct
 import subprocess
@@ -96,7 +97,9 @@ def test_json_output(real_files):
 @pytest.mark.parametrize("make, message", [
     (lambda d: d / "missing.npy", "no such file"),
     (lambda d: (d / "empty.pcd").write_bytes(b"") or d / "empty.pcd", "empty"),
-    (lambda d: np.save(d / "few.npy", np.zeros((5, 3))) or d / "few.npy", "after downsampling"),
+    (lambda d: np.save(d / "few.npy", np.zeros((5, 3))) or d / "few.npy", "too few points to register (5;"),
+    (lambda d: np.save(d / "heap.npy", np.zeros((500, 3))) or d / "heap.npy", "after downsampling"),
+    (lambda d: (d / "bad.pcd").write_text("garbage\n") and d / "bad.pcd", "no points could be read"),  # open3d quiet
 ])
 def test_bad_inputs_exit_nonzero_with_one_line(tmp_path, make, message):
     np.save(tmp_path / "ok.npy", POINTS)
@@ -135,6 +138,16 @@ def test_relocalize_with_a_missing_scan_says_so_in_one_line_and_exits_2(tmp_path
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip() == f"regor-relocalize: {tmp_path / 'missing.npy'}: no such file"
+
+
+def test_relocalize_with_no_node_running_says_so_without_waiting_for_the_answer_timeout():
+    """No register_node on this domain: the service is looked for --find-within seconds, not the
+    whole --timeout an answer may take."""
+    env = {**os.environ, "ROS_DOMAIN_ID": str((int(os.environ["ROS_DOMAIN_ID"]) + 37) % 100)}
+    proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.relocalize_client", "--find-within", "1",
+                           "--timeout", "3600"], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 2, proc.stderr
+    assert "regor-relocalize: no service /register_node/relocalize within 1 s" in proc.stderr.splitlines()[-1]
 
 
 def test_bench_help_shows_examples_and_the_data_formats_and_writes_beside_the_committed_results():

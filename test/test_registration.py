@@ -222,6 +222,8 @@ def test_degenerate_geometry_is_not_accepted(case):
 def test_a_single_repeated_point_is_refused_with_a_reason():
     with pytest.raises(RegistrationError, match="1 points after downsampling"):
         register(np.ones((1000, 3)), np.ones((1000, 3)), RegorConfig())
+    with pytest.raises(RegistrationError, match=r"too few points to register \(3;"):
+        register(np.eye(3), np.ones((1000, 3)), RegorConfig())
 
 
 def test_a_million_point_cloud_is_downsampled_and_registered():

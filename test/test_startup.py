@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-TOOLS = ["register_cli", "relocalize_client", "pair_client", "benchmark", "batch", "calibrate_gate"]
+TOOLS = ["register_cli", "verify_cli", "relocalize_client", "pair_client", "benchmark", "batch", "calibrate_gate"]
 HEAVY = ["open3d", "numba", "scipy.spatial", "scipy.stats", "regor_ros.core.pipeline", "regor_ros.core.kernels"]
 
 PROBE = """
@@ -63,3 +63,15 @@ def test_the_core_keeps_openmp_threads_from_spinning_long_while_they_wait_unless
             "print(os.environ.get('GOMP_SPINCOUNT'), 'numba' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
     assert run.stdout.split() == [user_setting or "10000", "False"], run.stderr
+
+
+def test_a_node_left_running_is_killed_and_named():
+    """What the suite does with a register_node a test left running (conftest.py)."""
+    from types import SimpleNamespace
+
+    from ros_helpers import kill_survivors
+    running = SimpleNamespace(proc=subprocess.Popen(["sleep", "600"]))
+    finished = SimpleNamespace(proc=subprocess.Popen(["true"]))
+    finished.proc.wait(timeout=10)
+    assert kill_survivors([running, finished]) == [running]
+    assert running.proc.poll() is not None

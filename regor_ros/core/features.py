@@ -116,6 +116,9 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
         ground = largest_plane(np.asarray(down.points), config.voxel_size)
         down = down.select_by_index(np.flatnonzero(ground).tolist(), invert=True)
     n = len(down.points)
+    if input_size < config.min_points:
+        raise RegistrationError(f"{name}: too few points to register ({input_size}; features.min_points="
+                                f"{config.min_points} keypoints are needed): is it the whole cloud?")
     if n < config.min_points:
         raise RegistrationError(
             f"{name}: {n} points after downsampling at voxel_size={config.voxel_size:g} m "

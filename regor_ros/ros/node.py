@@ -35,7 +35,7 @@ from .localizer import Hint, Localizer, Outcome
 from .parameters import apply_changes, declare_parameters
 from .pointcloud import cloud_to_xyz, xyz_to_cloud
 from .spin import PoolExecutor, spin
-from .transport import use_large_data_profile
+from .transport import profile_variable, use_large_data_profile
 from .watchdog import Check, TrackedPose
 
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
@@ -293,7 +293,8 @@ def main(args=None) -> int:
     try:
         node = RegisterNode()
         if profile:
-            node.get_logger().info(f"Fast DDS large-data transports: {profile} (FASTDDS_DEFAULT_PROFILES_FILE: yours)")
+            node.get_logger().info(f"Fast DDS large-data transports: {profile} (set {profile_variable()} "
+                                   "to use a profile of your own)")
     except (ConfigError, ParameterException) as exc:
         print(f"register_node: invalid parameter: {exc}", flush=True)
         rclpy.try_shutdown()

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -128,7 +129,14 @@ def load_samples(paths: list[Path], method: str) -> list[Sample]:
     out). ValueError when a CSV lacks a figure the gate judges (written by an older regor-bench)."""
     samples = []
     for path in paths:
-        for row in csv.DictReader(open(path)):
+        try:
+            rows = list(csv.DictReader(open(path, newline="", encoding="utf-8")))
+        except (OSError, UnicodeDecodeError, csv.Error) as exc:
+            raise ValueError(f"{path}: cannot be read as a CSV ({exc})") from None
+        missing = {"method", "error", "pair", "kind", "success"} - set(rows[0] if rows else ())
+        if missing:
+            raise ValueError(f"{path}: not a regor-bench CSV (no column {', '.join(sorted(missing))})")
+        for row in rows:
             if row["method"] != method or row["error"]:
                 continue
             try:
@@ -439,17 +447,24 @@ def report(samples: list[Sample]) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="regor-calibrate-gate", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="regor-calibrate-gate", description=__doc__.split("\n\n")[0],
+                                     epilog="example:\n  regor-calibrate-gate bench-out/benchmark.csv "
+                                            "bench-out/mismatched.csv --out bench-out/gate_calibration.md",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("csv", type=Path, nargs="+", help="benchmark.csv / mismatched.csv files of regor-bench")
-    parser.add_argument("--method", default="regor", help="the Regor variant whose figures are used")
-    parser.add_argument("--out", type=Path, help="also write the report here (markdown)")
+    parser.add_argument("--method", default="regor", help="the Regor variant whose figures are used "
+                                                          "(default: %(default)s)")
+    parser.add_argument("--out", type=Path, help="also write the report here (markdown; default: print only)")
     args = parser.parse_args(argv)
     try:
         samples = load_samples(args.csv, args.method)
     except ValueError as exc:
-        parser.error(str(exc))
+        print(f"regor-calibrate-gate: {exc}", file=sys.stderr)
+        return 2
     if not samples:
-        parser.error(f"no rows of method {args.method!r} in {', '.join(map(str, args.csv))}")
+        print(f"regor-calibrate-gate: no rows of method {args.method!r} in {', '.join(map(str, args.csv))}",
+              file=sys.stderr)
+        return 2
     text = ("# Quality gate calibration, leave one place out\n\n" + __doc__.split("\n\n", 1)[1] + "\n"
             + f"Data: {', '.join(f'`{p}`' for p in args.csv)}.\n\n" + report(samples))
     if args.out:
