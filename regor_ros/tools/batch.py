@@ -232,7 +232,11 @@ def kernel_threads(workers: int) -> int:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="regor-batch", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="regor-batch", description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  regor-batch candidates.csv --scans /data/scans --preset outdoor --out verified.jsonl\n"
+               "  regor-batch closures.jsonl --out checked.jsonl --scheduler tcp://10.0.0.5:8786   # rows with a "
+               "pose column are verified")
     parser.add_argument("pairs", help="the pair list: .csv with a header, or JSON lines "
                                       "(columns: source, target; optional id, source_viewpoint, target_viewpoint, "
                                       "preset)")
@@ -240,7 +244,8 @@ def main(argv=None) -> int:
                         help="one JSON row per pair; rows already there are skipped (resume)")
     parser.add_argument("--scans", metavar="DIR", help="folder the list's file names are in (default: the list's "
                                                        "folder)")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor", help="for rows that name none")
+    parser.add_argument("--preset", choices=PRESETS, default="indoor",
+                        help="for rows that name none (default: %(default)s)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter of every row's preset (repeatable)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
@@ -249,7 +254,7 @@ def main(argv=None) -> int:
                         help="use this Dask cluster instead (e.g. tcp://10.0.0.5:8786); its workers must "
                              "have regor_ros installed and see the files at the same paths")
     parser.add_argument("--cache-clouds", type=int, default=16, metavar="N",
-                        help="prepared clouds each worker keeps for the pairs that share them")
+                        help="prepared clouds each worker keeps for the pairs that share them (default: %(default)s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress line on stderr")
     args = parser.parse_args(argv)
     if args.workers < 1 or args.cache_clouds < 1:

@@ -120,14 +120,18 @@ def verdict_line(status: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="regor-pair-client", description=__doc__.split("\n\n")[0],
+                                     epilog="example:\n  regor-pair-client demo/src.npy demo/tgt.npy "
+                                            "--ground-truth demo/gt.txt --rotate 7",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", type=Path, help="source cloud, (N, 3) .npy")
     parser.add_argument("target", type=Path, help="target cloud, (N, 3) .npy")
     parser.add_argument("--ground-truth", type=Path, help="4x4 T_target_source to compare with")
     parser.add_argument("--rotate", type=int, metavar="SEED",
                         help="turn the source by a random rotation about its sensor first (truth "
                              "adjusted); it stays in its sensor frame, as the node's default viewpoint assumes")
-    parser.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the node")
+    parser.add_argument("--timeout", type=float, default=120.0,
+                        help="seconds to wait for the node (default: %(default)s)")
     parser.add_argument("--status", action="store_true",
                         help="print the node's whole status message (JSON: every figure of the verdict)")
     args = parser.parse_args(argv)

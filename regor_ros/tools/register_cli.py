@@ -61,7 +61,11 @@ def print_text(rep: dict) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="regor-register", description=__doc__.split("\n\n")[0],
-                                     epilog=f"formats: {', '.join(FORMATS)}")
+                                     epilog="examples:\n  regor-register demo/src.npy demo/tgt.npy --ground-truth "
+                                            "demo/gt.txt --picture out.png\n  regor-register scan.pcd map.pcd "
+                                            "--preset outdoor --target-viewpoint none --json\n\n"
+                                            f"formats: {', '.join(FORMATS)}",
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", help="cloud to move")
     parser.add_argument("target", help="cloud it is registered to")
     parser.add_argument("--preset", choices=PRESETS, default="indoor",
