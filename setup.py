@@ -52,6 +52,7 @@ setup(
             "regor-bench = regor_ros.tools.benchmark:main",
             "regor-register = regor_ros.tools.register_cli:main",
             "regor-verify = regor_ros.tools.verify_cli:main",
+            "regor-replay = regor_ros.tools.replay:main",
             "regor-batch = regor_ros.tools.batch:main",
             "regor-calibrate-gate = regor_ros.tools.calibrate_gate:main",
         ],

@@ -39,7 +39,7 @@ colcon --log-base "$BUILD/colcon-log" build --base-paths . --build-base "$BUILD"
 # the command-line tools on the virtual environment's PATH as well (ros2 run finds them in lib/)
 site=$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
 ls -d "$PWD/$INSTALL"/regor_ros/lib/python3*/site-packages > "$site/regor_ros_install.pth"
-for tool in regor-register regor-batch regor-bench regor-calibrate-gate regor-pair-client regor-relocalize regor-verify; do
+for tool in regor-register regor-batch regor-bench regor-calibrate-gate regor-pair-client regor-relocalize regor-verify regor-replay; do
   ln -sf "$PWD/$INSTALL/regor_ros/lib/regor_ros/$tool" "$VENV/bin/$tool"
 done
 # the build compiled the installed package's kernels (setup.py's install step); the source tree's

@@ -175,6 +175,19 @@ class Localizer:
                 self._history.add_scan(stamp, points, self._history_capacity())
             self.lock.notify_all()
 
+    def replay(self, header, stamp: float, points: np.ndarray, register_it: bool) -> Answer | None:
+        """Offline (regor-replay; no worker runs): a scan stored as a source message is, and when
+        ``register_it``, registered here and now as the worker would (fused along odometry, judged,
+        reported through on_outcome): a recording replayed as fast as the CPU allows."""
+        self.store("source", header, stamp, points)
+        if not register_it:
+            return None
+        with self.lock:
+            job = Register(self._inputs.source, None)
+            self._inputs.taken(job)
+            config, settings, hint = self.config, self.settings, self._hint
+        return self._register(job, config, settings, hint)
+
     def add_odometry(self, stamp: float, T_odom_scan: np.ndarray) -> None:
         with self.lock:
             self.stats["odometry_messages"] += 1
