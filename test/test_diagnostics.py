@@ -59,3 +59,26 @@ def test_lifecycle_states_and_a_map_file_say_what_the_node_is_doing():
     assert waiting.level == DiagnosticStatus.WARN and "unconfigured" in waiting.message
     from_file = status(map_from_file=True)
     assert "source_cloud" in from_file.message and "target_cloud" not in from_file.message
+
+
+def test_the_watchdog_is_a_second_status_with_its_level():
+    """OK verified (the correction reported), WARN suspect, ERROR lost, STALE not checked."""
+    from builtin_interfaces.msg import Time
+
+    from regor_ros.ros.diagnostics import WATCHDOG_NAME, diagnostic_array
+    from regor_ros.ros.watchdog import Check
+    health = Health(lifecycle="active", counters={"source_clouds": 1}, map_from_file=True)
+    assert [s.name for s in diagnostic_array(health, "/register_node", Time()).status] != [WATCHDOG_NAME]
+    levels = {}
+    for state, reason in (("verified", ""), ("suspect", "surfaces pass through each other"),
+                          ("lost", "surfaces pass through each other"), ("unchecked", "no pose has arrived")):
+        checked = state != "unchecked"
+        health.watchdog = Check(state, reason, 10.0, 10.0 if checked else None, 3 if state == "lost" else 0,
+                                (0.12, 0.4) if checked else None)
+        statuses = diagnostic_array(health, "/register_node", Time()).status
+        assert len(statuses) == 2 and statuses[1].name == WATCHDOG_NAME
+        levels[state] = statuses[1]
+    assert [levels[s].level for s in ("verified", "suspect", "lost", "unchecked")] == \
+        [DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR, DiagnosticStatus.STALE]
+    assert "relocalizing" in levels["lost"].message and "no pose has arrived" in levels["unchecked"].message
+    assert {kv.key: kv.value for kv in levels["verified"].values}["correction m"] == "0.12"

@@ -8,7 +8,8 @@ import sys
 
 import pytest
 
-TOOLS = ["register_cli", "verify_cli", "replay", "relocalize_client", "pair_client", "benchmark", "batch", "calibrate_gate"]
+TOOLS = ["register_cli", "verify_cli", "replay", "relocalize_client", "pair_client", "benchmark", "batch",
+         "calibrate_gate"]
 HEAVY = ["open3d", "numba", "scipy.spatial", "scipy.stats", "regor_ros.core.pipeline", "regor_ros.core.kernels"]
 
 PROBE = """
