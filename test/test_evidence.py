@@ -59,7 +59,8 @@ def test_a_right_pose_lies_on_the_maps_surfaces_and_its_support_is_beyond_chance
 def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncertainty_counts(avia_map):
     """Scans fused along odometry reach tens of metres: pitched by 2 deg, the far points move
     about a metre, beyond the fixed margin; at the keypoints' resolution, with these surfaces, a
-    right pose is known to about a degree (grid_covariance), so the check allows for it. A pose
+    right pose is known to about a degree (grid_covariance), so the check allows for it (fewer of
+    its points count as conflicts; what the map explains as change is left out either way). A pose
     turned by 90 deg still fails."""
     prepared, queries = avia_map
     query = queries["scan_000005"]
@@ -68,9 +69,9 @@ def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncerta
     uncertainty = resolution_uncertainty(query.truth, fused.points[pairs.source_index], OUTDOOR.features.voxel_size)
     gate = OUTDOOR.acceptance
     pitched = query.truth @ to_matrix(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))
-    assert visibility_figures(pitched, fused, prepared, gate).worst > gate.max_free_space_violation
+    fixed = visibility_figures(pitched, fused, prepared, gate)
     allowed = visibility_figures(pitched, fused, prepared, gate, uncertainty=uncertainty)
-    assert allowed.worst <= gate.max_free_space_violation
+    assert allowed.worst < fixed.worst and allowed.worst <= gate.max_free_space_violation
     turned = query.truth @ to_matrix(Rotation.from_euler("z", 90.0, degrees=True).as_matrix(), np.zeros(3))
     assert visibility_figures(turned, fused, prepared, gate, uncertainty=uncertainty).worst > 0.1
 

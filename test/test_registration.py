@@ -268,13 +268,13 @@ def test_plane_refinement_brings_a_sparse_scan_pair_from_a_metre_off_to_centimet
 def test_a_plane_refinement_that_slides_off_the_surfaces_keeps_the_point_level_pose(kitchen_pair, monkeypatch):
     """A refinement is kept only when it puts at least as many keypoints on the target's surfaces
     (within a voxel) as the point-level pose: one that slid 2 tau_e away found another pose."""
-    import regor_ros.core.pipeline as pipeline
+    import regor_ros.core.estimate as estimate
     src, tgt, _, _ = kitchen_pair
     cfg = RegorConfig()
     point = register(src, tgt, cfg.replace({"estimation.plane_refinement": False}))
     slid = np.eye(4)
     slid[:3, 3] = [2 * cfg.estimation.inlier_threshold, 0.0, 0.0]
-    monkeypatch.setattr(pipeline, "plane_refine", lambda T, *args, **kwargs: slid @ T)
+    monkeypatch.setattr(estimate, "plane_refine", lambda T, *args, **kwargs: slid @ T)
     kept = register(src, tgt, cfg.replace({"estimation.plane_refinement": True}))
     np.testing.assert_array_equal(kept.transform, point.transform)
     assert kept.num_inliers == point.num_inliers and kept.accepted == point.accepted

@@ -129,7 +129,11 @@ def test_a_wrong_pose_with_as_few_agreeing_matches_is_not_carried_by_its_surface
     assert not is_success(result.transform, query.truth, "outdoor")
     assert result.num_feature_inliers < 2 * OUTDOOR.acceptance.min_feature_inliers
     assert not result.accepted and result.verdict.failed == "max_false_alarms", result.reason
-    assert result.figures.surface_log10_false_alarms > 0
+    assert not result.verdict.carried_by
+    # the surfaces are measured only where they could change the verdict: a rival as well
+    # supported withholds this pose too, or the surfaces' test ran and failed
+    withheld_anyway = result.ambiguity is not None and result.ambiguity > OUTDOOR.acceptance.max_ambiguity
+    assert withheld_anyway or result.figures.surface_log10_false_alarms > 0
 
 
 def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdict(avia_map):
