@@ -38,9 +38,10 @@ def _pose(store, T: np.ndarray):
     return Pose(position=Point(x=T[0, 3], y=T[1, 3], z=T[2, 3]), orientation=Quaternion(x=x, y=y, z=z, w=w))
 
 
-def write_bag(path, storage: str, odometry: bool = True, fields: str = "xyz"):
+def write_bag(path, storage: str, odometry: bool = True, fields: str = "xyz", tracked=None):
     """The first SCANS winter scans on /points, their odometry on /odom and their true poses in
-    the summer map on /truth, as a robot's recording would hold them."""
+    the summer map on /truth, as a robot's recording would hold them; with ``tracked`` (a function
+    of the true pose and the scan's number) a localization stack's pose on /amcl_pose."""
     require_shared_data("the replay tests")
     from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -60,11 +61,18 @@ def write_bag(path, storage: str, odometry: bool = True, fields: str = "xyz"):
                   "/truth": writer.add_connection("/truth", "geometry_msgs/msg/PoseStamped", typestore=store)}
         if odometry:
             topics["/odom"] = writer.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=store)
+        if tracked:
+            topics["/amcl_pose"] = writer.add_connection("/amcl_pose", "geometry_msgs/msg/PoseWithCovarianceStamped",
+                                                         typestore=store)
         for k in range(SCANS):
             folder = SEQUENCE / "queries" / f"scan_{k:06d}"
             seconds = 100.0 + k
-            messages = [("/truth", PoseStamped(header=_header(store, seconds, "map"),
-                                               pose=_pose(store, np.loadtxt(folder / "gt.txt"))))]
+            truth = np.loadtxt(folder / "gt.txt")
+            messages = [("/truth", PoseStamped(header=_header(store, seconds, "map"), pose=_pose(store, truth)))]
+            if tracked:
+                Stamped = store.types["geometry_msgs/msg/PoseWithCovarianceStamped"]
+                messages.append(("/amcl_pose", Stamped(header=_header(store, seconds, "map"), pose=PoseWithCovariance(
+                    pose=_pose(store, tracked(truth, k)), covariance=np.zeros(36)))))
             if odometry:
                 messages.append(("/odom", Odometry(header=_header(store, seconds, "odom"), child_frame_id="laser",
                                                    pose=PoseWithCovariance(pose=_pose(store, poses[k]),
@@ -93,6 +101,7 @@ def test_an_mcap_recording_is_replayed_with_odometry_and_scored_against_its_refe
     assert f"{SCANS} of {SCANS} published poses agree" in summary and "no odometry" not in summary
     assert (tmp_path / "out" / "map.png").stat().st_size > 10_000
     assert summary in capsys.readouterr().out
+    assert not (SEQUENCE / "map.npy.regor-cache.npz").exists()   # --set map_cache=false is a boolean false
 
 
 def test_a_sqlite3_recording_without_odometry_every_two_seconds(tmp_path):
@@ -122,3 +131,20 @@ def test_what_cannot_be_replayed_is_said_in_one_line(tmp_path, capsys, case, say
     assert replay(bag, tmp_path / "out", *topic) == 2
     err = capsys.readouterr().err.strip()
     assert says in err and "\n" not in err and "Traceback" not in err
+
+
+def test_the_watchdog_on_a_recording_says_when_the_stack_is_lost_and_relocalizes(tmp_path):
+    """The stack's pose is right for two scans, then 10 m off: suspect, then lost (lost_after=2),
+    and the scan that finds it lost is registered (the relocalization)."""
+    def stack(truth, k):
+        return truth if k < 2 else np.vstack([truth[:3] + [[0, 0, 0, 10.0], [0] * 4, [0] * 4], truth[3:]])
+    bag = write_bag(tmp_path / "winter", "mcap", tracked=stack)
+    assert replay(bag, tmp_path / "out", "--odom-topic", "/odom", "--tracked-topic", "/amcl_pose",
+                  "--every", 1000, "--set", "lost_after=2") == 0
+    checks = list(csv.DictReader(open(tmp_path / "out" / "watchdog.csv")))
+    assert [c["watchdog"] for c in checks] == ["verified", "verified", "suspect", "lost", "suspect"], checks
+    rows = list(csv.DictReader(open(tmp_path / "out" / "registrations.csv")))
+    assert [float(r["stamp"]) for r in rows] == [100.0, 103.0]   # the first scan, and the relocalization
+    assert all(r["accepted"] == "True" for r in rows)
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert "5 checks of the stack's pose: 2 verified, 2 suspect, 1 lost" in summary

@@ -175,18 +175,32 @@ class Localizer:
                 self._history.add_scan(stamp, points, self._history_capacity())
             self.lock.notify_all()
 
-    def replay(self, header, stamp: float, points: np.ndarray, register_it: bool) -> Answer | None:
-        """Offline (regor-replay; no worker runs): a scan stored as a source message is, and when
-        ``register_it``, registered here and now as the worker would (fused along odometry, judged,
-        reported through on_outcome): a recording replayed as fast as the CPU allows."""
+    def replay(self, header, stamp: float, points: np.ndarray, register_it: bool,
+               check_it: bool = False) -> Answer | None:
+        """Offline (regor-replay; no worker runs): a scan stored as a source message is; with
+        ``check_it`` the watchdog checks the stack's pose on it (on_check), and with
+        ``register_it``, or when the check finds the robot lost, it is registered here and now as
+        the worker would (fused along odometry, judged, reported through on_outcome): a recording
+        replayed as fast as the CPU allows."""
         self.store("source", header, stamp, points)
+        if check_it:
+            with self.lock:
+                config, settings, source = self.config, self.settings, self._inputs.source
+            self._check(source, config, settings)
+            with self.lock:
+                register_it |= self._relocalizing
         if not register_it:
             return None
         with self.lock:
+            relocalizing, self._relocalizing, self._inputs.relocalize_after = self._relocalizing, False, None
             job = Register(self._inputs.source, None)
             self._inputs.taken(job)
             config, settings, hint = self.config, self.settings, self._hint
-        return self._register(job, config, settings, hint)
+        answer = self._register(job, config, settings, hint)
+        if relocalizing and answer.accepted:
+            with self.lock:
+                self.watchdog.found()
+        return answer
 
     def add_odometry(self, stamp: float, T_odom_scan: np.ndarray) -> None:
         with self.lock:

@@ -2,9 +2,11 @@
 
 Reads a rosbag2 (sqlite3 or MCAP; the rosbags library, no ROS install) and runs the node's own
 localizer on it as fast as the CPU allows: scans fused along the bag's odometry as the node fuses
-them, a relocalization in the map every --every seconds of the recording (default: every scan).
-Writes DIR/registrations.csv (the scan frame's pose in the map frame, or the base's with
---base-to-sensor; errors against --reference-topic where given), DIR/summary.md and DIR/map.png
+them, a relocalization in the map every --every seconds of the recording (default: every scan),
+and with --tracked-topic the watchdog's check of the localization stack's pose on every scan
+(DIR/watchdog.csv; lost, the robot is relocalized). Writes DIR/registrations.csv (the scan frame's
+pose in the map frame, or the base's with --base-to-sensor; errors against --reference-topic where
+given), DIR/summary.md and DIR/map.png
 (the map from above, the reference trajectory and every pose: green where the reference agrees).
 Exit status: 0 replayed, 2 the bag, a topic or the map cannot be used (one line).
 """
@@ -32,6 +34,7 @@ ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 REFERENCE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped", ODOMETRY_TYPE)
 FIELDS = ["stamp", "accepted", "reason", "x", "y", "z", "qx", "qy", "qz", "qw", "seconds",
           "reference_rotation_error_deg", "reference_translation_error_m", "agrees"]
+WATCHDOG_FIELDS = ["stamp", "watchdog", "reason", "failures_in_a_row", "correction_m", "correction_deg"]
 
 
 class ReplayError(Exception):
@@ -65,21 +68,23 @@ def _connections(reader, topic: str | None, types: tuple[str, ...], role: str):
 
 
 def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic: str | None,
-           reference_topic: str | None, every: float):
-    """(registrations, reference poses (stamp, 4x4), counts, the map as prepared) of one bag
-    replayed through the node's localizer (its map loaded as the node's configure loads it)."""
+           reference_topic: str | None, every: float, tracked_topic: str | None = None):
+    """(registrations, reference poses (stamp, 4x4), counts, the map as prepared, the watchdog's
+    checks) of one bag replayed through the node's localizer (its map loaded as the node's
+    configure loads it)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     from ..ros.localizer import Localizer
     from ..ros.messages import matrix_from_pose, stamp_seconds
     from ..ros.pointcloud import cloud_to_xyz
-    outcomes = {}
+    from ..ros.watchdog import TrackedPose
+    outcomes, checks = {}, []
     localizer = Localizer(config, settings, logging.getLogger("regor-replay"),
                           lambda outcome: outcomes.__setitem__(outcome.source.serial, outcome),
-                          lambda prepared, frame: None, lambda check: None)
+                          lambda prepared, frame: None, checks.append)
     localizer.configure()
-    registrations, reference, counts = [], [], {"scans": 0, "odometry": 0, "reference": 0}
+    registrations, reference, counts = [], [], {"scans": 0, "odometry": 0, "reference": 0, "tracked": 0}
     if not Path(bag).exists():
         raise ReplayError(f"{bag}: no such file or folder")
     # a bag written before rosbag2 stored its message definitions: the standard ones stand in
@@ -92,9 +97,10 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
         scans = _connections(reader, scan_topic, (SCAN_TYPE,), "--scan-topic")
         odometry = _connections(reader, odom_topic, (ODOMETRY_TYPE,), "--odom-topic")
         references = _connections(reader, reference_topic, REFERENCE_TYPES, "--reference-topic")
+        tracked = _connections(reader, tracked_topic, REFERENCE_TYPES, "--tracked-topic")
         last = -np.inf
         try:
-            for connection, _, raw in reader.messages(connections=scans + odometry + references):
+            for connection, _, raw in reader.messages(connections=scans + odometry + references + tracked):
                 message = reader.deserialize(raw, connection.msgtype)
                 stamp = stamp_seconds(message.header)
                 if connection in odometry:
@@ -103,6 +109,10 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
                 elif connection in references:
                     counts["reference"] += 1
                     reference.append((stamp, _pose_of(message, connection.msgtype)))
+                elif connection in tracked:
+                    counts["tracked"] += 1
+                    localizer.track_pose(TrackedPose(stamp, message.header.frame_id,
+                                                     _pose_of(message, connection.msgtype)))
                 else:
                     counts["scans"] += 1
                     try:
@@ -112,8 +122,8 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
                                           f"{exc}") from None
                     due = stamp >= last + every
                     start = time.perf_counter()
-                    answer = localizer.replay(message.header, stamp, points, due)
-                    if due:
+                    answer = localizer.replay(message.header, stamp, points, due, check_it=bool(tracked))
+                    if answer is not None:
                         last = stamp
                         outcome = outcomes.pop(answer.serial, None)
                         pose = None if outcome is None else outcome.result.transform
@@ -130,7 +140,7 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
         reader.close()
     if not counts["scans"]:
         raise ReplayError(f"{scan_topic}: no messages in the bag")
-    return registrations, reference, counts, localizer.map
+    return registrations, reference, counts, localizer.map, checks
 
 
 def nearest_reference(stamp: float, reference: list[tuple[float, np.ndarray]]) -> np.ndarray | None:
@@ -161,7 +171,13 @@ def rows(registrations: list[Registration], reference, config: RegorConfig) -> l
     return out
 
 
-def summary(bag: Path, table: list[dict], counts: dict, every: float) -> str:
+def watchdog_rows(checks) -> list[dict]:
+    return [{"stamp": f"{c.scan_stamp:.6f}", "watchdog": c.state, "reason": c.reason, "failures_in_a_row": c.failures,
+             "correction_m": "" if c.correction is None else c.correction[0],
+             "correction_deg": "" if c.correction is None else c.correction[1]} for c in checks]
+
+
+def summary(bag: Path, table: list[dict], counts: dict, every: float, checks=()) -> str:
     registered = [r for r in table if "x" in r]
     published = [r for r in table if r["accepted"]]
     checked = [r for r in published if "agrees" in r]
@@ -175,6 +191,11 @@ def summary(bag: Path, table: list[dict], counts: dict, every: float) -> str:
         agreeing = sum(r["agrees"] for r in checked)
         lines.append(f"- against the reference: **{agreeing} of {len(checked)} published poses agree**, "
                      f"{len(checked) - agreeing} do not")
+    if checks:
+        states = {state: sum(c.state == state for c in checks)
+                  for state in ("verified", "suspect", "lost", "unchecked")}
+        lines.append(f"- the watchdog, {len(checks)} checks of the stack's pose: " +
+                     ", ".join(f"{n} {state}" for state, n in states.items()))
     if not counts["odometry"]:
         lines.append("- no odometry: every scan was registered alone (give --odom-topic to fuse scans)")
     reasons: dict[str, int] = {}
@@ -225,6 +246,9 @@ def main(argv=None) -> int:
     parser.add_argument("--odom-topic", help="nav_msgs/Odometry to fuse scans along (default: none, scans alone)")
     parser.add_argument("--reference-topic", help="poses to compare with (PoseStamped, PoseWithCovarianceStamped "
                                                   "or Odometry in the map frame; default: none)")
+    parser.add_argument("--tracked-topic", help="the localization stack's pose (PoseWithCovarianceStamped, "
+                                                "PoseStamped or Odometry in the map frame): the watchdog checks it "
+                                                "on every scan (default: none)")
     parser.add_argument("--preset", choices=PRESETS, default="outdoor", help="(default: %(default)s)")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a core or node parameter, e.g. --set accumulate_scans=3 (repeatable)")
@@ -234,7 +258,7 @@ def main(argv=None) -> int:
                         help="the sensor's mounting on the robot: poses are the base's (default: the scan frame's)")
     parser.add_argument("--out", required=True, type=Path, help="folder for registrations.csv, summary.md, map.png")
     args = parser.parse_args(argv)
-    from ..ros.parameters import apply_changes, make_settings  # after parsing: --help answers at once
+    from ..ros.parameters import apply_changes, make_settings, typed_settings  # after parsing: --help at once
     from .register_cli import parse_overrides
 
     try:
@@ -243,10 +267,11 @@ def main(argv=None) -> int:
         if args.base_to_sensor:
             values.update(base_frame="base_link", base_to_sensor=args.base_to_sensor)
         config, settings = apply_changes(RegorConfig.preset(args.preset), make_settings(values),
-                                         parse_overrides(args.set))
+                                         typed_settings(parse_overrides(args.set)))
         logging.basicConfig(level=logging.ERROR, format="regor-replay: %(message)s")
-        registrations, reference, counts, prepared = replay(args.bag, config, settings, args.scan_topic,
-                                                            args.odom_topic, args.reference_topic, args.every)
+        registrations, reference, counts, prepared, checks = replay(
+            args.bag, config, settings, args.scan_topic, args.odom_topic, args.reference_topic, args.every,
+            args.tracked_topic)
     except (ConfigError, RegistrationError, ReplayError) as exc:
         print(f"regor-replay: {exc}", file=sys.stderr)
         return 2
@@ -256,7 +281,12 @@ def main(argv=None) -> int:
         writer = csv.DictWriter(f, fieldnames=FIELDS)
         writer.writeheader()
         writer.writerows(table)
-    text = summary(args.bag, table, counts, args.every)
+    if checks:
+        with open(args.out / "watchdog.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=WATCHDOG_FIELDS)
+            writer.writeheader()
+            writer.writerows(watchdog_rows(checks))
+    text = summary(args.bag, table, counts, args.every, checks)
     (args.out / "summary.md").write_text(text)
     picture(args.out / "map.png", prepared.map_view.surface, table, reference)
     print(text, end="")
