@@ -3,8 +3,7 @@ import numpy as np
 import pytest
 from conftest import DATA, DEMO_PAIR, load_pair, require_shared_data
 
-from regor_ros.core import RegistrationError, RegorConfig, is_success, prepare_cloud, register, to_matrix, verify
-from regor_ros.core.pipeline import prepare_pair
+from regor_ros.core import RegistrationError, RegorConfig, is_success, prepare_cloud, to_matrix, verify
 from regor_ros.tools.verify_cli import main as verify_main
 
 INDOOR, OUTDOOR = RegorConfig.preset("indoor"), RegorConfig.preset("outdoor")
@@ -52,14 +51,6 @@ def test_bad_poses_are_refused_with_a_reason(demo):
     for bad, words in ((np.full((4, 4), np.nan), "finite"), (np.eye(3), "4x4"), (2 * truth, "rigid")):
         with pytest.raises(RegistrationError, match=words):
             verify(source, target, bad, INDOOR)
-
-
-def test_a_cloud_prepared_to_verify_cannot_be_searched(demo):
-    source, target, _ = demo
-    _, prepared, _, _ = prepare_pair(source, target, INDOOR, describe=False)
-    assert not prepared.described
-    with pytest.raises(RegistrationError, match="without descriptors"):
-        register(prepared, target, INDOOR)
 
 
 @pytest.fixture(scope="module")

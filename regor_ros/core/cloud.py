@@ -34,9 +34,9 @@ class PreparedCloud:
 
     points: np.ndarray    # (N, 3) float64, metres
     normals: np.ndarray   # (N, 3) unit normals (for the pose covariance)
-    features: np.ndarray  # (N, 33) float32, L2-normalised; (N, 0) when prepared without descriptors
+    features: np.ndarray  # (N, 33) float32, L2-normalised
     tree: cKDTree
-    index: FeatureIndex | None  # None: prepared without descriptors (to verify a given pose, never to search)
+    index: FeatureIndex
     config: FeatureConfig  # the settings it was prepared with
     input_size: int        # finite points in the raw cloud
     views: tuple[RangeImage, ...] = ()  # what its sensor saw from each known viewpoint
@@ -46,11 +46,6 @@ class PreparedCloud:
 
     def __len__(self) -> int:
         return len(self.points)
-
-    @property
-    def described(self) -> bool:
-        """It has the descriptors a search needs."""
-        return self.index is not None
 
     @cached_property
     def neighbours(self) -> NeighbourGrid:

@@ -91,10 +91,8 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
-            trajectory=None, may_face_sensors: bool = True, gate: AcceptanceConfig | None = None,
-            describe: bool = True) -> PreparedCloud:
-    """Downsample, estimate normals, compute FPFH and L2-normalise the features (unless not
-    ``describe``: a cloud that only checks a given pose needs no search); with known
+            trajectory=None, may_face_sensors: bool = True, gate: AcceptanceConfig | None = None) -> PreparedCloud:
+    """Downsample, estimate normals, compute FPFH and L2-normalise the features; with known
     viewpoints also the range image of what each sensor saw (from its raw points), and without
     one the map view (seen from any position; ``trajectory``, the map's sensor poses, adds the
     views from where it was built). With config.normals_toward_sensors and the sensor positions
@@ -144,11 +142,9 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     toward = config.normals_toward_sensors and may_face_sensors and sensors is not None and len(sensors) > 0
     if toward:
         normals = toward_nearest(normals, keypoints, sensors)
-    features, index = np.zeros((len(keypoints), 0), dtype=np.float32), None
-    if describe:
-        features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
-        features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
-        index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
-                             config.search_probes_nearest)
+    features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
+    features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
+    index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
+                         config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
                          input_size, views, map_view, toward, shake)

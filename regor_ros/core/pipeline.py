@@ -228,28 +228,23 @@ def _normals_toward_sensors(source: SeenCloud | PreparedCloud, target: SeenCloud
 
 
 def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
-              may_face_sensors: bool, describe: bool) -> PreparedCloud:
+              may_face_sensors: bool) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
-        if describe and not cloud.described:
-            raise RegistrationError(f"{name} was prepared without descriptors (to verify a pose); "
-                                    "prepare it with prepare_cloud to register it")
         return cloud
-    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance,
-                   describe=describe)
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance)
 
 
 def prepare_pair(source: SourceInput, target: CloudInput, config: RegorConfig, source_viewpoint=FROM_CLOUD,
-                 target_viewpoint=FROM_CLOUD, describe: bool = True):
+                 target_viewpoint=FROM_CLOUD):
     """(the raw source, or the prepared one given; both clouds prepared; whether their normals face
-    their sensors): the inputs of register() and verify() checked and prepared as one pair.
-    ``describe``: compute the descriptors (a search needs them; checking a given pose does not)."""
+    their sensors): the inputs of register() and verify() checked and prepared as one pair."""
     raw_source, raw_target = _raw(source, source_viewpoint, "source"), _raw(target, target_viewpoint, "target")
     toward = _normals_toward_sensors(raw_source, raw_target, config)
-    return (raw_source, _prepared(raw_source, config, "source", toward, describe),
-            _prepared(raw_target, config, "target", toward, describe), toward)
+    return (raw_source, _prepared(raw_source, config, "source", toward),
+            _prepared(raw_target, config, "target", toward), toward)
 
 
 def register(source: SourceInput, target: CloudInput, config: RegorConfig | None = None, *,
