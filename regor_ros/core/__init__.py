@@ -17,7 +17,7 @@ from importlib import import_module
 os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 _HOMES = {
-    "config": ("CHOICES", "PRESETS", "FeatureConfig", "RegorConfig", "param"),
+    "config": ("CHOICES", "PRESETS", "FeatureConfig", "RegorConfig", "coerce", "param"),
     "errors": ("ConfigError", "RegistrationError"),
     "cloud": ("MAX_ABS_COORDINATE", "PreparedCloud"),
     "gate.figures": ("Figures", "RivalFigures", "stack"),

@@ -342,7 +342,7 @@ class RegorConfig:
         flat = self.to_flat()
         for key, value in overrides.items():
             name = resolve_name(key, flat)
-            flat[name] = _coerce(name, value, flat[name])
+            flat[name] = coerce(name, value, flat[name])
         new = RegorConfig()
         for name, value in flat.items():
             section, _, leaf = name.rpartition(".")
@@ -397,8 +397,9 @@ def resolve_name(key: str, flat: dict[str, Any]) -> str:
     raise ConfigError(f"unknown parameter {key!r}")
 
 
-def _coerce(name: str, value: Any, current: Any) -> Any:
-    """Convert a value (possibly a string from a command line) to the type of the current one."""
+def coerce(name: str, value: Any, current: Any) -> Any:
+    """Convert a value (possibly a string from a command line) to the type of the current one;
+    ConfigError naming ``name`` when it is not one."""
     try:
         if isinstance(current, str):
             return str(value)

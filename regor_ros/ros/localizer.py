@@ -396,10 +396,9 @@ class Localizer:
         result = None
         if pose is not None:
             T_map_sensor = pose.transform @ settings.base_extrinsic() if settings.base_frame else pose.transform
-            source, _ = self._source_input(src, settings)
-            viewpoint = {"source_viewpoint": settings.viewpoints()[0]} if source is src.points else {}
+            source, viewpoints, _ = self._source_input(src, settings)
             try:
-                result = verify(source, target, T_map_sensor, config, **viewpoint)
+                result = verify(source, target, T_map_sensor, config, **viewpoints)
             except RegistrationError as exc:
                 why = f"not checked: {exc}"
         with self.lock:
@@ -440,20 +439,23 @@ class Localizer:
         return hint.region
 
     def _source_input(self, src: Cloud, settings):
-        """The scan alone, or fused with the scans before it along odometry (accumulate_scans), and
-        what was fused (for status)."""
+        """(the scan alone, or fused with the scans before it along odometry (accumulate_scans);
+        the viewpoints to give register() and verify() with it; what was fused, for status). The
+        fused scans carry their own viewpoints (the scan frame's origin)."""
+        source_viewpoint, target_viewpoint = settings.viewpoints()
         limits = settings.accumulation()
-        if limits.scans < 2:
-            return src.points, None
-        with self.lock:
-            sequence, info = self._history.sequence(src.stamp, limits, settings.viewpoints()[0])
-        return (src.points if sequence is None else sequence), info
+        sequence, info = None, None
+        if limits.scans >= 2:
+            with self.lock:
+                sequence, info = self._history.sequence(src.stamp, limits, source_viewpoint)
+        if sequence is None:
+            return src.points, {"source_viewpoint": source_viewpoint, "target_viewpoint": target_viewpoint}, info
+        return sequence, {"target_viewpoint": target_viewpoint}, info
 
     def _register(self, job: Register, config, settings, hint: Hint | None) -> Answer:
         """Register the source against the pair's target or (map mode) the prepared map, and
         report it."""
         src = job.source
-        source_viewpoint, target_viewpoint = settings.viewpoints()
         if settings.mode == "map":
             with self.lock:
                 target, target_frame = self.map, self.map_frame
@@ -462,13 +464,8 @@ class Localizer:
         try:
             config, source_up = self._gravity(config, settings, src)
             region = self._region(hint, target_frame)
-            source, accumulation = self._source_input(src, settings)
-            if source is src.points:
-                result = register(source, target, config, source_viewpoint=source_viewpoint,
-                                  target_viewpoint=target_viewpoint, search_region=region)
-            else:  # the fused scans carry their viewpoints (the scan frame's origin)
-                result = register(source, target, config, target_viewpoint=target_viewpoint,
-                                  search_region=region)
+            source, viewpoints, accumulation = self._source_input(src, settings)
+            result = register(source, target, config, search_region=region, **viewpoints)
         except RegistrationError as exc:
             self.health.last_error = str(exc)
             self.bad_input(f"registration skipped: {exc}")

@@ -19,6 +19,7 @@ from ..core import (
     AccumulationLimits,
     ConfigError,
     RegorConfig,
+    coerce,
     param,
     parse_numbers,
     parse_viewpoint,
@@ -232,22 +233,8 @@ def typed_settings(changes: dict) -> dict:
     """Node settings written as text (a command line's NAME=VALUE) as their fields' types; core
     settings pass through (RegorConfig.replace types them). ConfigError names a value that is not."""
     defaults = {f.name: f.default for f in dataclasses.fields(NodeSettings)}
-    typed = {}
-    for name, value in changes.items():
-        default = defaults.get(name)
-        try:
-            if isinstance(default, bool) and isinstance(value, str):
-                if value.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
-                    raise ValueError(value)
-                value = value.lower() in ("1", "true", "yes", "on")
-            elif isinstance(default, int) and not isinstance(default, bool):
-                value = int(value)
-            elif isinstance(default, float):
-                value = float(value)
-        except ValueError:
-            raise ConfigError(f"{name}: cannot use {value!r} as a {type(default).__name__}") from None
-        typed[name] = value
-    return typed
+    return {name: coerce(name, value, defaults[name]) if name in defaults else value
+            for name, value in changes.items()}
 
 
 def apply_changes(config: RegorConfig, settings: NodeSettings,
