@@ -59,7 +59,6 @@ class Watchdog:
     def __init__(self):
         self.poses: deque[TrackedPose] = deque(maxlen=POSES_KEPT)
         self.failures = 0
-        self.latest: Check | None = None
 
     def track(self, pose: TrackedPose) -> None:
         self.poses.append(pose)
@@ -80,17 +79,15 @@ class Watchdog:
 
     def unchecked(self, reason: str, scan_stamp: float) -> Check:
         """A check that could not be made: no verdict, the run of failures unchanged."""
-        self.latest = Check(UNCHECKED, reason, scan_stamp, None, self.failures)
-        return self.latest
+        return Check(UNCHECKED, reason, scan_stamp, None, self.failures)
 
     def judged(self, verification, scan_stamp: float, pose_stamp: float, lost_after: int) -> Check:
         """The check of a verify() result: verified clears the run of failures; a failure is
         suspect, and lost from ``lost_after`` in a row."""
         self.failures = 0 if verification.accepted else self.failures + 1
         state = VERIFIED if verification.accepted else LOST if self.failures >= lost_after else SUSPECT
-        self.latest = Check(state, verification.reason, scan_stamp, pose_stamp, self.failures,
-                            (verification.correction_m, verification.correction_deg), verification.summary())
-        return self.latest
+        return Check(state, verification.reason, scan_stamp, pose_stamp, self.failures,
+                     (verification.correction_m, verification.correction_deg), verification.summary())
 
     def found(self) -> None:
         """The robot was relocalized (a pose published): the stack starts again from it."""
