@@ -46,7 +46,7 @@ setup(
     cmdclass={"install": InstallAndCompileKernels},
     entry_points={
         "console_scripts": [
-            "register_node = regor_ros.ros.node:main",
+            "register_node = regor_ros.ros.run:main",
             "regor-pair-client = regor_ros.tools.pair_client:main",
             "regor-relocalize = regor_ros.tools.relocalize_client:main",
             "regor-bench = regor_ros.tools.benchmark:main",

@@ -6,7 +6,8 @@ from conftest import DATA, require_shared_data
 
 from regor_ros.core import RegorConfig, is_success, prepare_cloud, register, to_matrix
 from regor_ros.core.gate.changed_world import unexplained_conflicts
-from regor_ros.core.gate.visibility import free_space_plausible, visibility_figures
+from regor_ros.core.gate.judge import Rules
+from regor_ros.core.gate.visibility import free_space_figures, visibility_figures
 from regor_ros.core.map_view import MapView
 from regor_ros.core.range_image import RangeImage
 
@@ -80,10 +81,10 @@ def test_the_change_explains_no_wrong_pose(summer_map, query_id):
     prepared, queries = summer_map
     query = queries[query_id]
     scan = prepare_cloud(query.scan, OUTDOOR, "scan", viewpoint=np.zeros(3))
-    assert free_space_plausible(query.truth, scan, prepared, GATE)
+    assert Rules(GATE).free_space_passes(free_space_figures(query.truth, scan, prepared, GATE))
     shifted = to_matrix(np.eye(3), np.array([2.0, 0.0, 0.0])) @ query.truth
     for wrong in (shifted, turned(query.truth, 30), turned(query.truth, 90), turned(query.truth, 180)):
-        assert not free_space_plausible(wrong, scan, prepared, GATE)
+        assert not Rules(GATE).free_space_passes(free_space_figures(wrong, scan, prepared, GATE))
 
 
 def test_two_scans_are_seen_at_one_time(summer_map):
@@ -93,4 +94,4 @@ def test_two_scans_are_seen_at_one_time(summer_map):
     source = prepare_cloud(second.scan, OUTDOOR, "scan", viewpoint=np.zeros(3))
     target = prepare_cloud(first.scan, OUTDOOR, "scan", viewpoint=np.zeros(3))
     figures = visibility_figures(np.linalg.inv(first.truth) @ second.truth, source, target, GATE)
-    assert figures.map_changed is None and figures.source_violation is not None
+    assert figures.map_changed is None and figures.free_space_source is not None

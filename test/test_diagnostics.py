@@ -7,7 +7,7 @@ from regor_ros.ros.diagnostics import Health, diagnostic_status, seconds_since_p
 
 SUMMARY = {"accepted": False, "reason": "only 12 feature matches agree with the pose", "num_inliers": 300,
            "fitness": 0.2, "feature_inliers": 12, "ambiguity": None, "timings": {"total": 1.5},
-           "visibility": {"worst": 0.01, "opposite_sides": 0.0}}
+           "visibility": {"worst_free_space": 0.01, "opposite_sides": 0.0}}
 
 
 def status(**state):

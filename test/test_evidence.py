@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
 from regor_ros.core.gate.evidence import independent, log10_binomial_tail, log10_false_alarms
-from regor_ros.core.gate.visibility import visibility_figures
+from regor_ros.core.gate.visibility import free_space_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
 from regor_ros.tools.map_benchmark import load_sequence
@@ -39,7 +39,7 @@ def test_a_sparse_scans_wrong_pose_with_chance_feature_support_is_rejected_as_ch
     query = {q.id: q for q in queries}["scan_000039"]
     result = register(query.scan, prepared, config)
     assert not is_success(result.transform, query.truth, "outdoor")
-    assert result.num_feature_inliers >= config.acceptance.min_feature_inliers   # chance reached the count
+    assert result.feature_inliers >= config.acceptance.min_feature_inliers   # chance reached the count
     assert not result.accepted
     assert result.evidence.independent_agreeing <= 3 and result.evidence.log10_false_alarms > 0
     assert "chance alone" in result.reason, result.reason
@@ -69,11 +69,11 @@ def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncerta
     uncertainty = resolution_uncertainty(query.truth, fused.points[pairs.source_index], OUTDOOR.features.voxel_size)
     gate = OUTDOOR.acceptance
     pitched = query.truth @ to_matrix(Rotation.from_euler("y", 2.0, degrees=True).as_matrix(), np.zeros(3))
-    fixed = visibility_figures(pitched, fused, prepared, gate)
-    allowed = visibility_figures(pitched, fused, prepared, gate, uncertainty=uncertainty)
-    assert allowed.worst < fixed.worst and allowed.worst <= gate.max_free_space_violation
+    fixed = free_space_figures(pitched, fused, prepared, gate).worst_free_space
+    allowed = free_space_figures(pitched, fused, prepared, gate, uncertainty=uncertainty).worst_free_space
+    assert allowed < fixed and allowed <= gate.max_free_space_violation
     turned = query.truth @ to_matrix(Rotation.from_euler("z", 90.0, degrees=True).as_matrix(), np.zeros(3))
-    assert visibility_figures(turned, fused, prepared, gate, uncertainty=uncertainty).worst > 0.1
+    assert free_space_figures(turned, fused, prepared, gate, uncertainty=uncertainty).worst_free_space > 0.1
 
 
 def test_independent_matches_are_one_per_descriptor_radius():

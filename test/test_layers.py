@@ -1,9 +1,16 @@
 """The package's layers read top to bottom: tools > ros > io > core, no import runs back up, no
 module imports itself round a circle (function-level imports included), and ros/, io/ and tools/
-reach the core through its public face (regor_ros.core) only."""
+reach the core through its public face (regor_ros.core) only. Inside the gate the judge is the top:
+the modules that measure ask it through the rules they are handed, never import it. And measured
+figures live in results/, not in the code's docstrings, comments or parameter descriptions."""
 import ast
+import dataclasses
+import io
+import re
+import tokenize
 from pathlib import Path
 
+import pytest
 from conftest import REPO
 
 PACKAGE = REPO / "regor_ros"
@@ -16,11 +23,23 @@ def _module(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _imports(path: Path):
-    """Every module ``path`` imports (absolute names), wherever in the file the import is."""
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """The ids of the import nodes under ``if TYPE_CHECKING:`` (for annotations; never run)."""
+    return {id(node) for block in ast.walk(tree)
+            if isinstance(block, ast.If) and isinstance(block.test, ast.Name) and block.test.id == "TYPE_CHECKING"
+            for statement in block.body for node in ast.walk(statement)}
+
+
+def _imports(path: Path, at_run_time: bool = False):
+    """Every module ``path`` imports (absolute names), wherever in the file the import is
+    (``at_run_time``: not those for annotations only)."""
     module = _module(path)
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    skipped = _type_checking_only(tree) if at_run_time else set()
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")[:len(package.split(".")) - node.level + 1]
@@ -77,3 +96,50 @@ def test_no_module_imports_itself_round_a_circle():
         if m not in state:
             visit(m, [m])
     assert not cycles, f"import circles: {cycles}"
+
+
+MEASURING = ["core/gate/visibility.py", "core/gate/rivals.py", "core/gate/measure.py", "core/gate/evidence.py",
+             "core/gate/surface_evidence.py", "core/gate/slide.py", "core/gate/changed_world.py", "core/shake.py",
+             "core/features.py"]
+
+
+@pytest.mark.parametrize("name", MEASURING)
+def test_the_modules_that_measure_import_no_judge(name):
+    imported = set(_imports(PACKAGE / name, at_run_time=True))
+    assert "regor_ros.core.gate.judge" not in imported, f"{name} imports the judge: hand it judge.Rules instead"
+
+
+# a measured timing (0.21 s, 8.8 ms), a measured share (99.8 %) or a before -> after
+MEASURED = re.compile(r"\b\d+\.\d+ ?(ms|s)\b(?!/)|\b\d+\.\d+ ?%|\d ?-> ?\d")
+
+
+def _prose(path: Path):
+    """(line, text) of every comment and docstring in ``path``."""
+    source = path.read_text()
+    for token in tokenize.generate_tokens(io.StringIO(source).readline):
+        if token.type == tokenize.COMMENT:
+            yield token.start[0], token.string
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            docstring = ast.get_docstring(node, clean=False)
+            if docstring:
+                yield node.body[0].lineno, docstring
+
+
+def test_measured_figures_live_in_results_not_in_the_code():
+    from regor_ros.core import RegorConfig
+    from regor_ros.ros.parameters import NodeSettings
+    found = [f"{path.relative_to(REPO)}:{line}: {match.group(0)}" for path in sorted(PACKAGE.rglob("*.py"))
+             for line, text in _prose(path) for match in MEASURED.finditer(text)]
+    descriptions = [(name, f.metadata["description"]) for name, _, f in RegorConfig().parameters()]
+    descriptions += [(f.name, f.metadata["description"]) for f in dataclasses.fields(NodeSettings)]
+    found += [f"parameter {name}: {match.group(0)}" for name, text in descriptions
+              for match in MEASURED.finditer(text)]
+    assert not found, "figures belong in results/ and doc/benchmarks.md: " + "; ".join(found)
+
+
+def test_no_class_of_the_node_does_more_than_fifteen_things():
+    crowded = [f"{path.name}:{node.name} ({methods})" for path in sorted((PACKAGE / "ros").glob("*.py"))
+               for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.ClassDef)
+               for methods in [sum(isinstance(n, ast.FunctionDef) for n in node.body)] if methods > 15]
+    assert not crowded, f"split these into parts with one job each: {crowded}"

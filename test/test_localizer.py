@@ -4,19 +4,20 @@ in use stays when a new one fails, a hint in another frame is dropped. On the bu
 import logging
 import threading
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from conftest import REPO
 
 from regor_ros.core import RegistrationError, RegorConfig, SearchRegion, rotation_error_deg, translation_error
-from regor_ros.ros.localizer import Hint, Localizer
+from regor_ros.ros.localizer import Localizer
 from regor_ros.ros.parameters import make_settings
+from regor_ros.ros.source_context import Hint
 
 DEMO = REPO / "demo"
 SOURCE, TARGET = np.load(DEMO / "src.npy"), np.load(DEMO / "tgt.npy")
 TRUTH = np.loadtxt(DEMO / "gt.txt")
+SECOND = 10**9   # [ns]: stamps are exact integers
 WAIT_S = 300.0   # a registration takes about a second; the bound only stops a hung test
 
 
@@ -40,20 +41,15 @@ def started(**settings):
                           recorder.outcomes.append, lambda prepared, frame: recorder.maps.append((prepared, frame)),
                           recorder.checks.append)
     localizer.configure()
-    localizer.start()
     localizer.set_active(True)
     return localizer, recorder
-
-
-def header(frame: str):
-    return SimpleNamespace(frame_id=frame)
 
 
 def test_the_worker_registers_the_newest_pair_and_reports_the_pose():
     localizer, recorder = started()
     try:
-        localizer.store("target", header("map"), 1.0, TARGET)
-        localizer.store("source", header("camera"), 1.0, SOURCE)
+        localizer.store("target", "map", SECOND, TARGET)
+        localizer.store("source", "camera", SECOND, SOURCE)
         outcome = recorder.wait_for_outcomes(1)
     finally:
         localizer.stop(5.0)
@@ -68,15 +64,15 @@ def test_the_worker_registers_the_newest_pair_and_reports_the_pose():
 def test_on_demand_a_relocalize_call_waits_for_the_next_source():
     localizer, recorder = started(registration="on_demand")
     try:
-        localizer.store("target", header("map"), 1.0, TARGET)
-        localizer.store("source", header("camera"), 1.0, SOURCE)
+        localizer.store("target", "map", SECOND, TARGET)
+        localizer.store("source", "camera", SECOND, SOURCE)
         time.sleep(0.5)
         assert not recorder.outcomes   # on demand: nothing registered without a call
         answers = []
         call = threading.Thread(target=lambda: answers.append(localizer.relocalize()))
         call.start()
         time.sleep(0.5)
-        localizer.store("source", header("camera"), 2.0, SOURCE)   # the scan after the call
+        localizer.store("source", "camera", 2 * SECOND, SOURCE)   # the scan after the call
         call.join(WAIT_S)
     finally:
         localizer.stop(5.0)
@@ -87,13 +83,13 @@ def test_on_demand_a_relocalize_call_waits_for_the_next_source():
 def test_a_hint_in_another_frame_is_dropped_with_a_warning(caplog):
     localizer, recorder = started()
     try:
-        localizer.set_hint(Hint("odom", SearchRegion.checked((0.0, 0.0, 0.0), 1.0)))
-        localizer.store("target", header("map"), 1.0, TARGET)
-        localizer.store("source", header("camera"), 1.0, SOURCE)
+        localizer.context.set_hint(Hint("odom", SearchRegion.checked((0.0, 0.0, 0.0), 1.0)))
+        localizer.store("target", "map", SECOND, TARGET)
+        localizer.store("source", "camera", SECOND, SOURCE)
         outcome = recorder.wait_for_outcomes(1)
     finally:
         localizer.stop(5.0)
-    assert outcome.status["search_region"] is None and localizer.stats["bad_inputs"] == 1
+    assert outcome.status["search_region"] is None and localizer.report.stats["bad_inputs"] == 1
     assert "initial_guess dropped: it is in 'odom', the target cloud in 'map'" in caplog.text
 
 
@@ -101,21 +97,22 @@ def test_a_map_is_loaded_one_way_and_the_map_in_use_stays_when_a_new_one_fails(t
     localizer, recorder = started(mode="map")
     try:
         with pytest.raises(FileNotFoundError):
-            localizer.use_map_url(str(tmp_path / "missing.npy"))
-        assert localizer.map is None
+            localizer.maps.use_url(str(tmp_path / "missing.npy"))
+        assert localizer.maps.prepared is None
         map_file = tmp_path / "room.npy"
         np.save(map_file, TARGET)
-        localizer.use_map_url(f"file://{map_file}")
-        in_use = localizer.map
-        assert in_use is not None and localizer.settings.map_file == str(map_file)
-        assert localizer.health.map_from_file and len(recorder.maps) == 1   # active: the map goes out
+        localizer.maps.use_url(f"file://{map_file}")
+        in_use = localizer.maps.prepared
+        assert in_use is not None and localizer.shared.settings.map_file == str(map_file)
+        assert localizer.report.health.map_from_file and len(recorder.maps) == 1   # active: the map goes out
         junk = tmp_path / "junk.npy"
         junk.write_bytes(np.random.default_rng(0).bytes(4096))
         with pytest.raises(RegistrationError):
-            localizer.use_map_url(str(junk))
-        assert localizer.map is in_use and localizer.settings.map_file == str(map_file)
-        localizer.store("source", header("camera"), 1.0, SOURCE)   # registered against the map file
+            localizer.maps.use_url(str(junk))
+        assert localizer.maps.prepared is in_use and localizer.shared.settings.map_file == str(map_file)
+        localizer.store("source", "camera", SECOND, SOURCE)   # registered against the map file
         outcome = recorder.wait_for_outcomes(1)
     finally:
         localizer.stop(5.0)
-    assert outcome.target_frame == localizer.settings.map_frame and outcome.status["map_keypoints"] == len(in_use)
+    assert outcome.target_frame == localizer.shared.settings.map_frame
+    assert outcome.status["map_keypoints"] == len(in_use)

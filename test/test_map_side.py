@@ -36,11 +36,11 @@ def test_the_map_seen_from_the_pose_rejects_a_turned_scan_the_scans_own_side_let
     without_trajectory = prepare_cloud(cloud, OUTDOOR, "map")
     scan = prepare_cloud(query.scan, OUTDOOR, "scan", viewpoint=(0, 0, 0))
     right = visibility_figures(query.truth, scan, without_trajectory, gate)
-    assert right.both_sides and right.map_seen > 0.9
-    assert right.target_violation <= gate.max_free_space_violation
+    assert right.free_space_source is not None and right.map_seen > 0.9
+    assert right.free_space_target <= gate.max_free_space_violation
     wrong = visibility_figures(turned_about_z(query.truth, 90), scan, without_trajectory, gate)
-    assert wrong.source_violation <= gate.max_free_space_violation   # the scan's side sees nothing wrong
-    assert wrong.target_violation > 0.1 and wrong.both_sides          # the map's side does
+    assert wrong.free_space_source <= gate.max_free_space_violation   # the scan's side sees nothing wrong
+    assert wrong.free_space_target > 0.1                              # the map's side does
 
 
 def test_a_scan_the_partial_threshold_withheld_is_published_once_the_map_side_is_checked(avia):
@@ -48,8 +48,8 @@ def test_a_scan_the_partial_threshold_withheld_is_published_once_the_map_side_is
     query = queries["scan_000057"]   # 26 agreeing matches: under min_feature_inliers_partial (60)
     result = register(query.scan, prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), OUTDOOR)
     assert is_success(result.transform, query.truth, "outdoor")
-    assert result.num_feature_inliers < OUTDOOR.acceptance.min_feature_inliers_partial
-    assert result.accepted and result.visibility.both_sides, result.reason
+    assert result.feature_inliers < OUTDOOR.acceptance.min_feature_inliers_partial
+    assert result.accepted and result.figures.both_sides, result.reason
     assert result.summary()["visibility"]["map_seen"] > 0.9
 
 

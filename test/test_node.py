@@ -83,12 +83,12 @@ def test_viewpoint_parameters_choose_the_sides_of_the_free_space_check(pairs_nod
     src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 27)
     _, status = ros.register_pair(src, tgt, TIMEOUT)
     both = status["visibility"]
-    assert both["source_violation"] is not None and both["target_violation"] is not None, status
+    assert both["free_space_source"] is not None and both["free_space_target"] is not None, status
     assert set_param(ros, "target_viewpoint", "none").successful
     try:
         _, status = ros.register_pair(src, tgt, TIMEOUT)
         one = status["visibility"]
-        assert one["target_violation"] is None and one["source_violation"] is not None, status
+        assert one["free_space_target"] is None and one["free_space_source"] is not None, status
         assert status["accepted"], status
     finally:
         assert set_param(ros, "target_viewpoint", "auto").successful
@@ -205,7 +205,7 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         assert second["map_preparations"] == first["map_preparations"]
         # a map has no single viewpoint: its side is the map seen from where the pose puts the scan
         # (this target is a fragment of a room, so about half the scan lands on what it holds)
-        assert second["visibility"]["source_violation"] is not None
+        assert second["visibility"]["free_space_source"] is not None
         assert 0.2 < second["visibility"]["map_seen"] <= 1.0
     finally:
         assert node.stop() < 5.0

@@ -167,7 +167,7 @@ def test_a_real_room_of_another_place_is_rejected_by_the_free_space_check_alone(
     checked = register(hotel, kitchen, cfg, source_viewpoint=sensor)
     assert np.allclose(checked.transform, blind.transform)
     assert not checked.accepted and "max_free_space_violation" in checked.reason
-    assert checked.visibility.worst > cfg.acceptance.max_free_space_violation
+    assert checked.figures.worst_free_space > cfg.acceptance.max_free_space_violation
 
 
 def test_a_home_fragment_is_not_published_on_a_hotel_fragment():

@@ -190,7 +190,7 @@ def test_a_low_overlap_pose_its_matches_single_out_is_published_with_fewer_than_
     config = RegorConfig.preset("indoor")
     result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
     assert rotation_error_deg(result.transform, T_gt) < 3 and translation_error(result.transform, T_gt) < 0.05
-    assert result.num_feature_inliers < config.acceptance.min_feature_inliers
+    assert result.feature_inliers < config.acceptance.min_feature_inliers
     assert result.accepted and result.verdict.singled_out and result.summary()["singled_out"], result.reason
     assert all(lead <= config.acceptance.max_ambiguity for lead, far in zip(
         result.rivals.lead_chance, another_answer(result.rivals.moved_tau, result.rivals.distance_deg), strict=True)

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
 from regor_ros.core.features import prepare
-from regor_ros.core.gate.visibility import visibility_figures
+from regor_ros.core.gate.visibility import free_space_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.tools.map_benchmark import shaken
 
@@ -19,7 +19,7 @@ def worst_at(T, fused, target):
     """The free-space figure the gate judges ``T`` on, with a right pose's resolution allowance."""
     pairs = inliers_at(T, fused.points, target.neighbours, OUTDOOR.estimation.inlier_threshold)
     uncertainty = resolution_uncertainty(T, fused.points[pairs.source_index], OUTDOOR.features.voxel_size)
-    return visibility_figures(T, fused, target, OUTDOOR.acceptance, uncertainty=uncertainty).worst
+    return free_space_figures(T, fused, target, OUTDOOR.acceptance, uncertainty=uncertainty).worst_free_space
 
 
 def test_a_shaky_sequences_right_pose_passes_free_space_and_a_turned_one_does_not(avia_map):

@@ -8,9 +8,9 @@ from conftest import DATA, EARLIER_INDOOR, load_pair, load_threedmatch, require_
 from regor_ros.core import RegistrationError, RegorConfig, prepare_cloud, register, rotation_error_deg
 from regor_ros.core.config import ConfigError
 from regor_ros.core.gate.figures import Figures
-from regor_ros.core.gate.judge import judge
+from regor_ros.core.gate.judge import Rules, judge
 from regor_ros.core.gate.rivals import rivals as refined_rivals
-from regor_ros.core.gate.visibility import free_space_plausible, visibility_figures
+from regor_ros.core.gate.visibility import free_space_figures, visibility_figures
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
 from regor_ros.core.range_image import RangeImage
@@ -53,11 +53,12 @@ def verdict_on_visibility(T, source, target):
     (measured on the pose as given, the rivals refined as the pipeline does)."""
     visibility = visibility_figures(T, source, target, INDOOR.acceptance, np.arange(len(target)))
     overlap = (source.points, target.points, target.normals)
-    rivals, _ = refined_rivals(T, overlap, matched(T, source), [], source, target, INDOOR)
+    rivals, _ = refined_rivals(T, overlap, matched(T, source), [], source, target, INDOOR,
+                               Rules(INDOOR.acceptance).contends)
     figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
                       log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=len(source),
                       rivals=rivals, **visibility.as_figures())
-    return judge(figures, INDOOR.acceptance), visibility
+    return judge(figures, INDOOR.acceptance), figures
 
 
 def turn_about_z(degrees, centre=(0.0, 0.0, 0.0)):
@@ -84,7 +85,7 @@ def rooms():
 def test_true_pose_of_a_room_sees_no_surface_in_free_space(rooms):
     source, target, T_true = rooms
     figures = visibility_figures(T_true, source, target, INDOOR.acceptance)
-    assert figures.source_violation < 0.02 and figures.target_violation < 0.02
+    assert figures.free_space_source < 0.02 and figures.free_space_target < 0.02
     verdict, _ = verdict_on_visibility(T_true, source, target)
     assert verdict.accepted, verdict.reason
 
@@ -93,10 +94,10 @@ def test_room_turned_90_degrees_is_rejected_by_visibility_alone(rooms):
     source, target, T_true = rooms
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
     # every other check is given passing figures: only free space can reject it
-    verdict, visibility = verdict_on_visibility(wrong, source, target)
+    verdict, figures = verdict_on_visibility(wrong, source, target)
     assert not verdict.accepted and verdict.failed == "max_free_space_violation"
     assert "saw through" in verdict.reason and "max_free_space_violation" in verdict.reason
-    assert visibility.worst > 0.1   # the true pose: under 0.02
+    assert figures.worst_free_space > 0.1   # the true pose: under 0.02
 
 
 def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_check(rooms):
@@ -105,12 +106,12 @@ def test_a_map_is_seen_from_the_pose_and_no_viewpoint_on_either_side_skips_the_c
     wrong = turn_about_z(90.0, centre=np.array([0.0, 0.0, 1.25])) @ T_true
     both = visibility_figures(wrong, source, map_like, INDOOR.acceptance)
     # the map's side: the room seen from where the wrong pose puts the source sensor
-    assert both.source_violation > 0.1 and both.target_violation > 0.1 and both.map_seen > 0.5
-    right = visibility_figures(T_true, source, map_like, INDOOR.acceptance)
-    assert right.target_violation < INDOOR.acceptance.max_free_space_violation and right.both_sides
+    assert both.free_space_source > 0.1 and both.free_space_target > 0.1 and both.map_seen > 0.5
+    right = free_space_figures(T_true, source, map_like, INDOOR.acceptance)
+    assert right.free_space_target < INDOOR.acceptance.max_free_space_violation and right.both_sides
     blind = prepare_cloud(transform_points(np.linalg.inv(T_true), room()), INDOOR, viewpoint=None)
-    unknown = visibility_figures(wrong, blind, map_like, INDOOR.acceptance)
-    assert unknown.worst is None
+    unknown = free_space_figures(wrong, blind, map_like, INDOOR.acceptance)
+    assert np.isnan(unknown.worst_free_space)
     assert verdict_on_visibility(wrong, blind, map_like)[0].accepted
 
 
@@ -137,11 +138,11 @@ def test_a_map_without_viewpoint_still_registers_and_is_checked_from_the_scans_s
     target = prepare_cloud(tgt, INDOOR, viewpoint=None)
     result = register(src, target, INDOOR, source_viewpoint=(0, 0, 0))
     assert result.accepted, result.reason
-    assert result.visibility.source_violation is not None and result.visibility.source_violation < 0.1
+    assert result.visibility.free_space_source is not None and result.visibility.free_space_source < 0.1
     # a fragment of a room as the map: too little of the scan lands on what it holds to count
     assert result.visibility.map_seen < INDOOR.acceptance.map_view_min_seen
-    assert result.visibility.target_violation is None and not result.visibility.both_sides
-    assert result.summary()["visibility"]["worst"] == result.visibility.source_violation
+    assert result.visibility.free_space_target is None and not result.figures.both_sides
+    assert result.summary()["visibility"]["worst_free_space"] == result.visibility.free_space_source
 
 
 def scenes_pair_source(name, motion_seed):
@@ -165,7 +166,7 @@ def test_rooms_of_two_places_put_back_to_back_are_rejected_by_the_opposite_sides
                                                 "min_weakest_support": 0.0, "max_ambiguity": 1.0}),
                      source_viewpoint=sensor)
     assert blind.accepted, blind.reason   # every other check passes
-    assert blind.visibility.worst < 0.01
+    assert blind.figures.worst_free_space < 0.01
     checked = register(hotel, study, cfg.replace({"min_feature_inliers": 0}), source_viewpoint=sensor)
     assert not checked.accepted and "opposite sides" in checked.reason
     assert checked.visibility.opposite_sides > 0.9
@@ -183,10 +184,10 @@ def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
     cfg = INDOOR.replace({**EARLIER_INDOOR, "seed": 6, "estimation.plane_refinement": False})
     both = register(home.src, kitchen.tgt, cfg, source_viewpoint=home.src_viewpoint)
     assert not both.accepted and "lies in space" in both.reason
-    assert both.num_feature_inliers >= cfg.acceptance.min_feature_inliers
+    assert both.feature_inliers >= cfg.acceptance.min_feature_inliers
     as_map = prepare_cloud(kitchen.tgt, cfg, viewpoint=None)
     one_sided = register(home.src, as_map, cfg, source_viewpoint=home.src_viewpoint)
-    assert not one_sided.visibility.both_sides and one_sided.summary()["visibility"]["both_sides"] is False
+    assert not one_sided.figures.both_sides and one_sided.summary()["visibility"]["both_sides"] is False
     assert not one_sided.accepted and "min_feature_inliers_partial" in one_sided.reason
     lenient = cfg.replace({"min_feature_inliers_partial": cfg.acceptance.min_feature_inliers})
     assert register(home.src, as_map, lenient, source_viewpoint=home.src_viewpoint).accepted
@@ -199,7 +200,7 @@ def test_two_rooms_without_viewpoints_need_the_partial_count_fitted_on_such_runs
     # (150) does not (results/no_viewpoints/: 25 gross wrong poses on the lists at 95, 10 at 150)
     src, tgt, T = load_threedmatch("studyroom", 65, 21)
     unseen = register(src, tgt, INDOOR, source_viewpoint=None, target_viewpoint=None)
-    assert rotation_error_deg(unseen.transform, T) > 80 and not unseen.visibility.both_sides
+    assert rotation_error_deg(unseen.transform, T) > 80 and not unseen.figures.both_sides
     assert not unseen.accepted and "min_feature_inliers_partial=150" in unseen.reason
     earlier = INDOOR.replace({"min_feature_inliers_partial": 95})
     assert register(src, tgt, earlier, source_viewpoint=None, target_viewpoint=None).accepted
@@ -216,15 +217,16 @@ def test_a_box_rooms_quarter_turn_seen_through_from_both_sides_is_withheld():
     source, target = (prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt))
     result = register(source, target, config)
     assert rotation_error_deg(result.transform, T_gt) > 80
-    gate, sides = config.acceptance, (result.visibility.source_violation, result.visibility.target_violation)
+    gate, sides = config.acceptance, (result.visibility.free_space_source, result.visibility.free_space_target)
     assert max(sides) <= gate.max_free_space_violation and min(sides) > gate.max_free_space_both_sides
     assert not result.accepted and result.verdict.failed == "max_free_space_both_sides", result.reason
     assert result.reason.startswith("both sensors saw through the other cloud's surfaces")
     # the verification's pick (estimation.visible_candidates) holds a place to the same checks (it
     # reads free space without the pose's uncertainty: each side's bound is lifted to tell them apart)
     loose = replace(gate, max_free_space_violation=0.1)
-    assert not free_space_plausible(result.transform, source, target, loose)
-    assert free_space_plausible(result.transform, source, target, replace(loose, max_free_space_both_sides=1.0))
+    figures = free_space_figures(result.transform, source, target, loose)
+    assert not Rules(loose).free_space_passes(figures)
+    assert Rules(replace(loose, max_free_space_both_sides=1.0)).free_space_passes(figures)
 
 
 def test_a_pose_seen_through_from_one_side_only_passes_the_both_sides_check():

@@ -37,10 +37,10 @@ def test_a_wrong_winner_that_fails_free_space_gives_way_to_the_right_place_found
     config = RegorConfig.preset("indoor").replace({"features.normals_toward_sensors": True})
     first = register(src, tgt, config.replace({"estimation.visible_candidates": 0}))
     assert not is_success(first.transform, T, "indoor") and first.selected != "candidate"
-    assert first.visibility.worst > config.acceptance.max_free_space_violation
+    assert first.figures.worst_free_space > config.acceptance.max_free_space_violation
     picked = register(src, tgt, config.replace({"estimation.visible_candidates": 8}))
     assert picked.selected == "candidate" and is_success(picked.transform, T, "indoor")
-    assert picked.visibility.worst <= config.acceptance.max_free_space_violation
+    assert picked.figures.worst_free_space <= config.acceptance.max_free_space_violation
     # the gate still judges it: this low-overlap pose has too little feature support against chance
     assert not picked.accepted and "chance" in picked.reason
 
@@ -58,7 +58,7 @@ def test_outdoors_a_sparse_scans_place_is_found_among_the_next_places_and_publis
     sparse = query.scan[::THINNING]
     first = register(sparse, target, outdoor.replace({"estimation.visible_candidates": 0}))
     assert not is_success(first.transform, query.truth, "outdoor")
-    assert first.visibility.worst > outdoor.acceptance.max_free_space_violation
+    assert first.figures.worst_free_space > outdoor.acceptance.max_free_space_violation
     picked = register(sparse, target, outdoor)
     assert picked.selected == "candidate" and is_success(picked.transform, query.truth, "outdoor")
     assert picked.accepted, picked.reason
@@ -75,7 +75,7 @@ def test_as_shipped_a_box_rooms_quarter_turn_gives_way_to_the_truth_the_search_f
     source, target = (prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt))
     first = register(source, target, config.replace({"estimation.visible_candidates": 0}))
     assert rotation_error_deg(first.transform, T) > 80 and not first.accepted
-    assert first.visibility.worst > config.acceptance.max_free_space_violation
+    assert first.figures.worst_free_space > config.acceptance.max_free_space_violation
     picked = register(source, target, config)
     assert picked.selected == "candidate" and picked.accepted, picked.reason
     assert rotation_error_deg(picked.transform, T) < 10 and translation_error(picked.transform, T) < 0.35

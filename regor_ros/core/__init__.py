@@ -10,8 +10,7 @@ from importlib import import_module
 
 # OpenMP threads waiting for the next kernel spin for some microseconds, not GNU's default of
 # about a millisecond: on a robot computer's two cores shared with other processes the spinning
-# threads took the cores the work needed (beside one busy process: 3DMatch pairs 1.11 -> 0.81 s,
-# map queries 2.99 -> 2.41 s; on a quiet machine no slower). GNU's runtime (numba's kernels,
+# threads took the cores the work needed (results/HISTORY.md, "Figures from the code"). GNU's runtime (numba's kernels,
 # FAISS's) reads it when it loads, which is after this package is imported unless the process
 # loaded it before; a user's own setting, or OMP_WAIT_POLICY, stands.
 os.environ.setdefault("GOMP_SPINCOUNT", "10000")

@@ -41,18 +41,17 @@ class FeatureConfig:
                                  "(deviation; outdoor preset only)")
     min_points: int = param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
     exact_search_limit: int = param(20000, "feature search is exact against clouds of up to this many keypoints "
-                                     "(a scan: the shared pairs have up to 13.6 k); a larger cloud (a map) gets an "
+                                     "(a scan); a larger cloud (a map) gets an "
                                      "approximate index, built once when it is prepared", 0, 100000000)
     search_probes: int = param(128, "cells of the approximate feature index scanned for a keypoint's K candidates: "
-                                "more finds more of the exact candidates, slower (128: 99.8 % of them on a real "
-                                "map)", 1, 100000)
+                                "more finds more of the exact candidates, slower", 1, 100000)
     search_probes_nearest: int = param(64, "cells of the approximate feature index scanned for a keypoint's nearest "
-                                        "neighbour (64: 99.8 % of the exact ones on a real map)", 1, 100000)
+                                        "neighbour: more finds more of the exact ones, slower", 1, 100000)
     normals_toward_sensors: bool = param(True, "turn each normal toward the nearest known sensor position (a "
                                          "viewpoint, a map's trajectory) when both clouds know theirs: FPFH then "
                                          "compares a surface's seen side whatever the frames' headings (PCL's "
                                          "convention; off: open3d's solver picks the sign, as the authors run it; "
-                                         "the 3DMatch lists' recall 90.4 / 42.1 -> 94.0 / 55.8 %; deviation)")
+                                         "deviation)")
     range_image_resolution: float = param(1.0, "angular bin of the range image that records what a cloud's sensor saw, "
                                            "for the free-space check (coarser than the sensor's own resolution) "
                                            "[deg]", 0.05, 10.0)
@@ -139,9 +138,8 @@ class EstimationConfig:
     visible_candidates: int = param(8, "when the pose puts one cloud into space the other sensor saw through "
                                        "(acceptance.max_free_space_violation, _both_sides), refine up to this "
                                        "many other places the search found and take the one that does not, with "
-                                       "the most inliers; the gate then judges it as any pose (0 = off; 3DLoMatch "
-                                       "recall 55.8 -> 62.0 %; outdoors, sparse scans against a map, 12 -> 18 of 41 "
-                                       "published; deviation)", 0, 100)
+                                       "the most inliers; the gate then judges it as any pose (0 = off; "
+                                       "deviation)", 0, 100)
 
 
 @dataclass
@@ -178,7 +176,7 @@ class AcceptanceConfig:
                                                    "conflicts are one sensor's artefacts (a fused fragment's other "
                                                    "views, a passer-by) and leave the other side clear, while "
                                                    "surfaces that pass through each other are seen through from "
-                                                   "both (a box room's quarter turn: 3-6 % on each side); needs "
+                                                   "both (a box room's quarter turn); needs "
                                                    "both viewpoints (1 = off; calibrated: regor-calibrate-gate)",
                                              0.0, 1.0)
     free_space_margin: float = param(0.15, "a keypoint is in seen free space only when nearer than the seen surface "

@@ -4,25 +4,20 @@ Matching asks, for every source keypoint, its most similar target keypoint, and 
 thousand of them the K most similar; the outdoor preset also asks each target keypoint's most
 similar source keypoint (mutual matches). Against a scan-sized target an exact search is
 affordable and is what runs: one compiled pass over the products (``kernels.flat_search``)
-answers all three, where FAISS searched three times (a MulRan scan pair's 14.5 k keypoints:
-0.31 -> 0.21 s; an indoor pair 0.067 -> 0.047 s). Against a map it is not: the dense
-similarity grows with the map (98 s and 11 GB against 634 k keypoints), so beyond
+answers all three, where FAISS searched three times. Against a map it is not: the dense
+similarity grows with the map, so beyond
 ``exact_limit`` keypoints the features go into an inverted-file index (k-means cells, seeded,
-so the same map gives the same index) and a query scans only the cells nearest to it. Measured
-on the real scan-to-map data (MulRan, OS1-64, 74 k map keypoints), 128 cells return 99.8 % of
-the exact K = 100 candidates (by similarity) and 64 cells 99.8 % of the exact nearest
-neighbours (99.97 % with 128, at twice the time).
+so the same map gives the same index) and a query scans only the cells nearest to it
+(features.search_probes, search_probes_nearest: how many).
 
 A query scans its probed cells for its nearest neighbour (every scan keypoint, about 14 k) and
 for its K candidates (a few thousand of them). FAISS scans query by query, so each query streams
-its cells' rows from memory again (3 MB for 128 cells of a 582 k-keypoint map); ``CellTable``
+its cells' rows from memory again; ``CellTable``
 turns the loop around: each cell's rows are read once, in one matrix product with all the
 queries that probe it (``kernels.cell_top_k``, compiled, on every thread). The probed cells and
 the rows compared are FAISS's; the similarities are the matrix product's (FAISS sums in another
 order: the last bit may differ), and ties (FPFH has many: identical histograms) go to the lower
-cell, then the lower row. On a 582 k-keypoint map the K = 100 candidates of 2,500 queries took
-0.13 s instead of FAISS's 0.47 s, and the nearest neighbours of 14.5 k queries 0.16 s instead of
-0.27 s (the same products, looped over in numpy).
+cell, then the lower row.
 
 Features are unit vectors: inner product ranks them as the feature distance does.
 """
@@ -45,9 +40,8 @@ KMEANS_SEED = 1234
 def _reservoir_top_k():
     """FAISS's flat search keeps each query's top k in a heap for k < 100 and in a reservoir
     (collect, then partition) from 100 on. For the probed cells of thousands of queries (k = 64
-    of a few thousand cells) the reservoir gives the same cells in the same order in 0.09 s
-    instead of 0.12 s (506 k-keypoint map, 14.5 k queries). FAISS's switch is process-wide,
-    so it is restored on the way out."""
+    of a few thousand cells) the reservoir gives the same cells in the same order, sooner.
+    FAISS's switch is process-wide, so it is restored on the way out."""
     before = faiss.cvar.distance_compute_min_k_reservoir
     faiss.cvar.distance_compute_min_k_reservoir = 1
     try:

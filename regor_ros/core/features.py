@@ -2,18 +2,23 @@
 PreparedCloud it makes)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
 from . import kernels
 from .cloud import PreparedCloud, SeenCloud, check_viewpoint, clean_points
-from .config import AcceptanceConfig, FeatureConfig
+from .config import FeatureConfig
 from .errors import RegistrationError
 from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .neighbour_grid import NeighbourGrid
 from .shake import seen_views
+
+if TYPE_CHECKING:
+    from .gate.judge import Rules
 
 FPFH_CHUNK = 100_000  # keypoints per FPFH call: bounds its memory (about 100 MB) on a map
 
@@ -52,9 +57,8 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
          chunk: int = FPFH_CHUNK) -> np.ndarray:
     """(N, 33) float32 FPFH as Open3D computes it (its histograms; neighbourhoods of the max_nn
     nearest points within the radius, the point itself counted), compiled (kernels.fpfh_features)
-    on a grid of cells the radius's size: 12 3DMatch fragments (3.4-5.9 k keypoints) in a median
-    8.8 ms against Open3D's 50 ms on two cores (Open3D searches a kd-tree per point and holds the
-    GIL), the same histograms but where neighbours tie at the cut-off. A point's FPFH reads its
+    on a grid of cells the radius's size, faster than Open3D (which searches a kd-tree per point
+    and holds the GIL), the same histograms but where neighbours tie at the cut-off. A point's FPFH reads its
     neighbours' neighbours, so a map goes through in slabs along x of ``chunk`` points, each with
     the points within two radii around it, which bounds the memory (about 1 kB a point)."""
     def histograms(rows) -> np.ndarray:
@@ -83,15 +87,13 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
     normal's sign to its eigen solver, which decides it in the cloud's own axes: the same surface
     in two clouds whose frames are turned apart gets opposite signs about as often as not, and
     FPFH's angles change with the signs, so its histograms do not match (PCL turns normals toward
-    the viewpoint by default). Measured on the shared data: indoor pairs published correct 34 ->
-    50 of 66; a revisit query seen 139 deg from the map's heading, 25 -> 223 correct nearest
-    feature matches."""
+    the viewpoint by default)."""
     toward = sensors[cKDTree(sensors).query(points)[1]] - points
     return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
-            trajectory=None, may_face_sensors: bool = True, gate: AcceptanceConfig | None = None) -> PreparedCloud:
+            trajectory=None, may_face_sensors: bool = True, rules: Rules | None = None) -> PreparedCloud:
     """Downsample, estimate normals, compute FPFH and L2-normalise the features; with known
     viewpoints also the range image of what each sensor saw (from its raw points), and without
     one the map view (seen from any position; ``trajectory``, the map's sensor poses, adds the
@@ -99,8 +101,7 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     known (viewpoints, or the trajectory), the normals face the nearest of them (toward_nearest),
     unless ``may_face_sensors`` is false: two clouds' features compare only under one convention,
     and register() prepares a source under its target's. Scans fused along odometry have their views
-    read as wide as their own disagreement asks (shake.py; judged with ``gate``, the free-space check's
-    settings)."""
+    read as wide as their own disagreement asks (shake.py, under the judge's ``rules``)."""
     if cloud.viewpoints is not None:
         for i, vp in enumerate(cloud.viewpoints):
             check_viewpoint(vp, name if len(cloud.parts) == 1 else f"{name} scan {i}")
@@ -126,7 +127,7 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     if cloud.viewpoints is not None:
         if trajectory is not None:
             raise RegistrationError(f"{name}: a trajectory is for a cloud without viewpoint (a map)")
-        views, shake = seen_views(parts, cloud.viewpoints, config.range_image_resolution, config.voxel_size, gate)
+        views, shake = seen_views(parts, cloud.viewpoints, config.range_image_resolution, config.voxel_size, rules)
     else:
         try:
             positions = None if trajectory is None else trajectory_positions(trajectory)

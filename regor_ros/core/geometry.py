@@ -34,7 +34,7 @@ def unique_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(unique rows of the integer array ``values``, the index of each one's first occurrence),
     rows in lexicographic order: np.unique(values, axis=0, return_index=True), which sorts
     structured rows, from the rows packed into one integer each (mixed radix over the columns'
-    ranges, which keeps their order): a regeneration's 20 k matches 10x faster."""
+    ranges, which keeps their order), which is faster."""
     if len(values) == 0:
         return values, np.zeros(0, np.int64)
     low = values.min(axis=0)

@@ -35,8 +35,7 @@ numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 @lru_cache(maxsize=1)
 def _numpy_blas() -> ThreadpoolController:
     """The BLAS libraries loaded (numpy's, scipy's), except the copy FAISS carries: FAISS finds
-    the cells a map query probes, and on one thread it was slower (map queries 1.06 against
-    0.98 s, measured when it also ran the exact search)."""
+    the cells a map query probes, and on one thread it was slower."""
     blas = ThreadpoolController().select(user_api="blas")
     return blas.select(filepath=[lib.filepath for lib in blas.lib_controllers if "faiss" not in lib.filepath.lower()])
 
@@ -50,8 +49,8 @@ _blas_limit = None
 def blas_on_one_thread():
     """numpy's BLAS on one thread while registrations run (the first in limits, the last out
     restores). After a call OpenBLAS keeps its worker threads spinning, waiting for the next; on
-    two cores they took a core from the compiled kernels and FAISS that came next (indoor pairs
-    0.44 against 0.39 s median, the same poses), and a registration's products are too small
+    two cores they took a core from the compiled kernels and FAISS that came next, and a
+    registration's products are too small
     to gain from a second thread."""
     global _blas_users, _blas_limit
     with _blas_lock:
@@ -603,8 +602,8 @@ def _replace_worst(heap, key):
 def _offer_to_heap(heap, dots, start):
     """Offer a run of similarities (positions start, start + 1, ...) to a top-k heap of keys: one
     array of k per query, which suits a scan that visits the queries' lists in scattered order,
-    a few hundred similarities at a time (a buffered list's floor, count and spare room took the
-    by-cell scan's nearest neighbours of 14.5 k queries from 0.14 to 0.29 s). Positions ascend
+    a few hundred similarities at a time (a buffered list's floor, count and spare room were
+    slower there). Positions ascend
     within a run and across the runs offered, so an equal one is never better."""
     worst = _similarity_of(heap[0])
     for j in range(len(dots)):
@@ -635,7 +634,7 @@ def _offer_to_list(keys, held, floor, i, k, dots, start):
     rank ``keys`` (k + _spare(k) places, ``held`` of them filled) take every similarity above its
     ``floor``; a full list keeps its k best and raises the floor to the worst of them (FAISS's
     reservoir). Started at a sampled floor (flat_search), a list takes about 3k entries where a
-    heap re-orders itself on nine times k: a 3DMatch pair's whole search 0.090 -> 0.075 s.
+    heap re-orders itself on nine times k.
     Positions ascend within a run and across the runs offered, so a similarity equal to the
     floor is never better than the k kept."""
     bar, filled = floor[i], held[i]

@@ -23,9 +23,9 @@ from .estimate import (
 from .features import prepare
 from .gate.evidence import Evidence
 from .gate.figures import Figures, RivalFigures
-from .gate.judge import Verdict, judge, passes
+from .gate.judge import Rules, Verdict, judge, passes, undecided
 from .gate.measure import measure, region_figures, reverse_figures
-from .gate.visibility import VisibilityFigures, free_space_plausible
+from .gate.visibility import VisibilityFigures, free_space_figures
 from .gravity import GravityPrior
 from .initial import initial_stage, led_by, same_place
 from .kernels import blas_on_one_thread
@@ -43,6 +43,8 @@ SourceInput = np.ndarray | PreparedCloud | ScanSequence
 SAME_POSE_DEG = 2.0
 SAME_POSE_FRACTION = 0.5  # of the estimator's inlier threshold
 REGRID_STREAM = 2  # keeps the retry rotations apart from other seeded draws of the same seed
+# an attempt is measured, not judged: register() judges once, the pose it keeps
+UNJUDGED = Verdict(False, "not judged yet", "unjudged")
 
 
 @dataclass
@@ -67,15 +69,12 @@ class Candidate:
 
 @dataclass
 class RegistrationResult:
-    """register()'s answer: the pose, the gate's verdict and every figure behind it."""
+    """register()'s answer: the pose, the gate's verdict and every figure behind it (the counts it
+    reports are the figures', under their names)."""
 
     transform: np.ndarray          # 4x4 T_target_source: maps source points into the target frame
-    verdict: Verdict               # the quality gate's (core/gate/judge.py) on ``figures``
     figures: Figures               # everything the gate judged the pose on
-    num_inliers: int               # source keypoints with a target keypoint within tau_e
-    fitness: float                 # num_inliers / source keypoints
-    num_feature_inliers: int       # initial feature matches consistent with the pose
-    inlier_rmse: float             # RMS residual of those inliers [m]
+    inlier_rmse: float             # RMS residual of the inliers [m]
     covariance: np.ndarray         # 6x6 over (x, y, z, roll, pitch, yaw), target frame
     initial: Correspondences       # all feature matches, inlier = within tau of the final pose
     final: Correspondences         # the estimator's point-level inlier pairs
@@ -88,6 +87,22 @@ class RegistrationResult:
     visibility: VisibilityFigures = field(default_factory=lambda: VisibilityFigures(None, None))
     evidence: Evidence | None = None  # the pose's support against chance (core/gate/evidence.py)
     candidates: list[Candidate] = field(default_factory=list)  # this pose, then the other places found
+    verdict: Verdict = UNJUDGED    # the quality gate's (core/gate/judge.py) on ``figures``
+
+    @property
+    def num_inliers(self) -> int:
+        """Source keypoints with a target keypoint within tau_e after refinement."""
+        return int(self.figures.num_inliers)
+
+    @property
+    def fitness(self) -> float:
+        """num_inliers / source keypoints."""
+        return float(self.figures.fitness)
+
+    @property
+    def feature_inliers(self) -> int:
+        """Initial feature matches consistent with the pose."""
+        return int(self.figures.feature_inliers)
 
     @property
     def accepted(self) -> bool:
@@ -121,11 +136,13 @@ class RegistrationResult:
         return {
             "accepted": self.accepted, "reason": self.reason,
             "num_inliers": self.num_inliers, "fitness": self.fitness,
-            "inlier_rmse": self.inlier_rmse, "feature_inliers": self.num_feature_inliers,
+            "inlier_rmse": self.inlier_rmse, "feature_inliers": self.feature_inliers,
             "source_keypoints": self.num_source_keypoints,
             "target_keypoints": self.num_target_keypoints,
             "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
-            "attempts": self.attempts, "visibility": self.visibility.as_dict(),
+            "attempts": self.attempts,
+            "visibility": {**self.visibility.as_dict(), "worst_free_space": _measured(self.figures.worst_free_space),
+                           "both_sides": bool(self.figures.both_sides)},
             "ambiguity": self.ambiguity,
             "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "carried_by": self.verdict.carried_by,
             "singled_out": self.verdict.singled_out,
@@ -133,6 +150,10 @@ class RegistrationResult:
             "evidence": None if self.evidence is None else self.evidence.as_dict(),
             "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,
         }
+
+
+def _measured(value: float) -> float | None:
+    return None if np.isnan(value) else float(value)
 
 
 class _FromCloud:
@@ -161,7 +182,7 @@ def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: 
     if isinstance(points, ScanSequence):
         if viewpoint is not None:
             raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
-        return prepare(points.fused(), config.features, name, trajectory, gate=config.acceptance)
+        return prepare(points.fused(), config.features, name, trajectory, rules=Rules(config.acceptance))
     return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
 
 
@@ -234,7 +255,7 @@ def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, gate=config.acceptance)
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, rules=Rules(config.acceptance))
 
 
 def prepare_pair(source: SourceInput, target: CloudInput, config: RegorConfig, source_viewpoint=FROM_CLOUD,
@@ -287,21 +308,22 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
     if search_region is not None:
         target = restrict(target, search_region, prepared_source)
     prepare_seconds = time.perf_counter() - start
-    prior = GravityPrior.of(config.gravity)
+    prior, acceptance = GravityPrior.of(config.gravity), config.acceptance
     result = _register_once(prepared_source, target, config, prior)
     attempts = 1
-    while not result.accepted and attempts <= config.acceptance.retries and isinstance(raw_source, SeenCloud):
+    while (not passes(result.figures, acceptance) and attempts <= acceptance.retries
+           and isinstance(raw_source, SeenCloud)):
         turn = regrid_rotation(config.seed, attempts)
         regrid_start = time.perf_counter()
         try:
             turned = prepare(raw_source.moved(turn), config.features, "source", may_face_sensors=toward,
-                             gate=config.acceptance)
+                             rules=Rules(acceptance))
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
         retry = _register_once(turned, target, config, prior and prior.turned(turn[:3, :3]))
         retry.timings["features"] += time.perf_counter() - regrid_start
         attempts += 1
-        if retry.accepted:
+        if passes(retry.figures, acceptance):
             retry = _undo_turn(retry, turn)
             # the place the first attempt withheld keeps its verdict: a new grid is another draw
             # of the same figures, and a pose near a threshold would pass on one of a few draws
@@ -311,11 +333,11 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
     figures = result.figures
     if search_region is not None:
         figures = dataclasses.replace(figures, **region_figures(result.transform, search_region))
-    if config.acceptance.reverse_check and passes(figures, config.acceptance):
+    if acceptance.reverse_check and passes(figures, acceptance):
         reverse = _register_once(target, prepared_source, config, prior and prior.swapped())
         figures = dataclasses.replace(figures, **reverse_figures(
             result.transform, np.linalg.inv(reverse.transform), config.initial.inlier_threshold))
-    result.figures, result.verdict = figures, judge(figures, config.acceptance)
+    result.figures, result.verdict = figures, judge(figures, acceptance)
     result.timings["features"] += prepare_seconds
     result.timings["total"] = time.perf_counter() - start
     return result
@@ -340,8 +362,10 @@ def _undo_turn(result: RegistrationResult, turn: np.ndarray) -> RegistrationResu
 
 def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: RegorConfig,
                    prior: GravityPrior | None) -> RegistrationResult:
-    """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, gate
-    (``prior``: the gravity prior in these clouds' frames, or None)."""
+    """One pass of the pipeline: features, matching, initial stage, regeneration, estimation, and
+    every figure the gate judges, measured (``prior``: the gravity prior in these clouds' frames, or
+    None)."""
+    rules = Rules(config.acceptance)
     rng = np.random.default_rng(config.seed)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -366,7 +390,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     lap("matching")
 
     def plausible(T: np.ndarray) -> bool:
-        return free_space_plausible(T, src_cloud, tgt_cloud, config.acceptance)
+        return rules.free_space_passes(free_space_figures(T, src_cloud, tgt_cloud, config.acceptance))
 
     initial = initial_stage(init_src, init_tgt, src_cloud, tgt_cloud, matches, config.initial, rng,
                             plausible if config.initial.free_space_selection else None, prior)
@@ -401,21 +425,21 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     num_inliers = len(final_src)
     rmse = float(np.sqrt(np.mean(refined.distances ** 2))) if num_inliers else float("inf")
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
-    measured = measure(refined, src_cloud, tgt_cloud, (init_src, init_tgt, initial_inlier), covariance,
-                       uncertainty, initial.hypotheses_tried, [pose for pose, _ in initial.candidates], config, prior)
-    verdict = judge(measured.figures, config.acceptance)
+    measured = measure(refined, src_cloud, tgt_cloud, (init_src, init_tgt, initial_inlier), covariance=covariance,
+                       uncertainty=uncertainty, hypotheses=initial.hypotheses_tried,
+                       places=[pose for pose, _ in initial.candidates], config=config, rules=rules, prior=prior)
     lap("verification")
     timings["total"] = time.perf_counter() - start
+    undecided_rivals = measured.rival_poses[undecided(measured.figures, config.acceptance)]
     return RegistrationResult(
-        transform=T, verdict=verdict, figures=measured.figures, num_inliers=num_inliers,
-        fitness=measured.figures.fitness, num_feature_inliers=measured.figures.feature_inliers, inlier_rmse=rmse,
-        covariance=covariance, initial=Correspondences(init_src, init_tgt, initial_inlier),
+        transform=T, figures=measured.figures, inlier_rmse=rmse, covariance=covariance,
+        initial=Correspondences(init_src, init_tgt, initial_inlier),
         final=Correspondences(final_src, final_tgt, np.ones(num_inliers, dtype=bool)),
         num_source_keypoints=len(src_cloud), num_target_keypoints=len(tgt_cloud),
         selected=selected, stage_sizes=sizes, timings=timings, visibility=measured.visibility,
         evidence=measured.evidence,
         candidates=[Candidate(pose, support) for pose, support in
-                    led_by([T, *measured.undecided_rivals(config.acceptance)], initial.candidates,
+                    led_by([T, *undecided_rivals], initial.candidates,
                            config.initial.inlier_threshold)])
 
 

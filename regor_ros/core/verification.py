@@ -22,7 +22,7 @@ import numpy as np
 from .config import RegorConfig
 from .estimate import agreeing, plane_refined, point_refine, pose_covariance, resolution_uncertainty
 from .gate.figures import Figures
-from .gate.judge import Verdict, judge
+from .gate.judge import Rules, Verdict, judge
 from .gate.measure import measure
 from .gate.visibility import VisibilityFigures
 from .gravity import GravityPrior
@@ -89,7 +89,8 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     searched = max(1, round(config.initial.seed_ratio * min(len(source), config.initial.max_correspondences)))
     measured = measure(refined, source, target,
                        (source.points, matched, agreeing(T, source.points, matched, config.initial.inlier_threshold)),
-                       covariance, resolution_uncertainty(T, inliers_source, voxel), searched, [], config, prior)
+                       covariance=covariance, uncertainty=resolution_uncertainty(T, inliers_source, voxel),
+                       hypotheses=searched, places=[], config=config, rules=Rules(config.acceptance), prior=prior)
     verdict = judge(measured.figures, config.acceptance)
     moved_m, moved_deg = translation_error(T, given), rotation_error_deg(T, given)
     tolerance = config.verification

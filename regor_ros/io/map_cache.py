@@ -1,6 +1,6 @@
 """A prepared map saved to disk, so that a robot's restart does not prepare its map again.
 
-Preparing a 1.9 M-point map takes over 12 s here: normals, FPFH, and the k-means training of its
+Preparing a large map takes seconds (doc/benchmarks.md): normals, FPFH, and the k-means training of its
 feature index. A cache file holds what preparation computed: keypoints, normals, features, the
 trained index (its cell centres and each keypoint's cell), and the map view's surface and
 trajectory. It is keyed by a digest of the map's content, its trajectory and every feature

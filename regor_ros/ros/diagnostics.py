@@ -93,7 +93,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
             "last verdict": "accepted" if summary["accepted"] else "rejected",
             "inliers": summary["num_inliers"], "fitness": summary["fitness"],
             "feature inliers": summary["feature_inliers"],
-            "free-space violation": visibility["worst"],
+            "free-space violation": visibility["worst_free_space"],
             "opposite sides": visibility["opposite_sides"], "ambiguity": summary["ambiguity"],
             **{f"seconds {stage}": seconds for stage, seconds in summary["timings"].items()},
         })

@@ -16,10 +16,15 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Cloud:
-    header: Any          # the message's header, carried to the outputs' stamps
-    stamp: float         # [s]
+    frame_id: str
+    stamp_ns: int        # the message's stamp [ns], exact: the outputs carry it
     points: np.ndarray
     serial: int          # increases with every message received on its topic
+
+    @property
+    def stamp(self) -> float:
+        """[s], as messages.stamp_seconds reads a header (odometry's and the IMU's stamps)"""
+        return self.stamp_ns // 10**9 + 1e-9 * (self.stamp_ns % 10**9)
 
 
 @dataclass(frozen=True)
@@ -74,14 +79,14 @@ class InputBuffer:
         self.done = {"source": 0, "target": 0}     # serials last registered
         self.relocalize_after: int | None = None  # a relocalize call waits for a source after this serial
 
-    def store(self, which: str, header, stamp: float, points: np.ndarray, mode: str) -> bool:
+    def store(self, which: str, frame_id: str, stamp_ns: int, points: np.ndarray, mode: str) -> bool:
         """Keep the newest cloud of ``which`` ("source" or "target"); True when it replaced one that
         was never registered (a stale input dropped; in map mode a target is a map, never stale)."""
         self.serials[which] += 1
         previous = self.source if which == "source" else self.target
         stale = (previous is not None and previous.serial > self.done[which]
                  and (which == "source" or mode == "pairs"))
-        cloud = Cloud(header, stamp, points, self.serials[which])
+        cloud = Cloud(frame_id, stamp_ns, points, self.serials[which])
         if which == "source":
             self.source = cloud
         else:

@@ -5,6 +5,7 @@ import json
 from typing import TYPE_CHECKING
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, PoseWithCovarianceStamped
 from sensor_msgs.msg import Imu
 from std_msgs.msg import ColorRGBA, Header, String
@@ -20,7 +21,7 @@ OUTLIER_COLOUR = ColorRGBA(r=0.9, g=0.1, b=0.1, a=0.6)
 
 
 def pose_from_matrix(T: np.ndarray) -> Pose:
-    from scipy.spatial.transform import Rotation  # scipy.spatial's load (0.5 s): not for a client's --help
+    from scipy.spatial.transform import Rotation  # scipy.spatial loads slowly: not for a client's --help
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in T[:3, 3])
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
@@ -38,6 +39,16 @@ def matrix_from_pose(pose: Pose) -> np.ndarray:
 
 def stamp_seconds(header: Header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def stamp_nanoseconds(header) -> int:
+    """The header's stamp as one exact integer (a ROS header, or a rosbags one)."""
+    return header.stamp.sec * 10**9 + header.stamp.nanosec
+
+
+def header_at(stamp_ns: int, frame_id: str) -> Header:
+    """A header with the exact stamp of an input (stamp_nanoseconds) and ``frame_id``."""
+    return Header(stamp=Time(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id=frame_id)
 
 
 def imu_reading(msg: Imu) -> tuple:

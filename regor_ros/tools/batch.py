@@ -213,11 +213,10 @@ def plain_worker_environment():
     (it is read when each worker's nanny is made, which restarts its worker so too). Dask sets
     two things before it starts a worker, and both change a registration:
     MALLOC_TRIM_THRESHOLD_=65536 turns off glibc's adaptive mmap threshold, so every large numpy
-    array is mapped and unmapped afresh: registrations took 54 % longer (24 MulRan pairs, 21.5 s
-    instead of 13.9 s). OMP_NUM_THREADS=1 changed the bits when FAISS ran the exact feature
-    search: it summed in an order that depends on the thread count, so a near tie between two
-    features went either way (16 of 14.5 k matches of one MulRan pair; 2 of 90 poses then
-    differed by 2-4 mm). FAISS still finds the cells a map query probes. (The nanny
+    array is mapped and unmapped afresh, and registrations took longer. OMP_NUM_THREADS=1 changed
+    the bits when FAISS ran the exact feature search: it summed in an order that depends on the
+    thread count, so a near tie between two features went either way, and poses differed in the last
+    millimetres. FAISS still finds the cells a map query probes. (The nanny
     also writes these variables into this process's own environment, so nothing else goes here:
     the kernels' thread share is set per task, ``kernel_threads``.)"""
     import dask

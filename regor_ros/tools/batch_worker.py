@@ -61,7 +61,7 @@ _clouds: PreparedClouds | None = None  # this process's, made by the first pair 
 class QuietShutdown(WorkerPlugin):
     """A worker plugin: a worker that is closing does not log its failed heartbeat. Closing the
     local cluster, a worker's heartbeat already in flight can meet the connections the worker is
-    closing itself (4-5 of 30 closes with both cores busy; dask/distributed#7105), and distributed
+    closing itself (often with both cores busy; dask/distributed#7105), and distributed
     logs that at ERROR with two tracebacks: noise after a finished batch that looks like a failure.
     A running worker's failed heartbeat is still logged."""
 

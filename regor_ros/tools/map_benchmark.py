@@ -61,7 +61,7 @@ TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
                f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
                "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
-SCALING_QUERIES = 10  # queries registered at each map size (the median of 5 moved by 0.1 s between runs)
+SCALING_QUERIES = 10  # queries registered at each map size (fewer: the median moved between runs)
 
 
 def _peak_gb() -> float:

@@ -109,7 +109,7 @@ class PairClient(Node):
 def verdict_line(status: dict) -> str:
     """The status message's verdict in one short line (--status prints all of it)."""
     evidence = status.get("evidence") or {}
-    worst = (status.get("visibility") or {}).get("worst")
+    worst = (status.get("visibility") or {}).get("worst_free_space")
     figures = [f"{status['num_inliers']} inliers", f"{status['feature_inliers']} feature matches agree"]
     if evidence.get("log10_false_alarms") is not None:
         figures.append(f"10^{evidence['log10_false_alarms']:.1f} false alarms")

@@ -50,7 +50,7 @@ def render(source: np.ndarray, target: np.ndarray, result: RegistrationResult, p
     axes[0, 0].legend(loc="upper right", fontsize=7, markerscale=15)
     verdict = "accepted" if result.accepted else f"NOT accepted: {result.reason}"
     fig.suptitle(f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
-                 f"{result.num_feature_inliers} feature matches agree (green; red: disagree) - {verdict}", fontsize=11)
+                 f"{result.feature_inliers} feature matches agree (green; red: disagree) - {verdict}", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

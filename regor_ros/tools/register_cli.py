@@ -48,9 +48,9 @@ def print_text(rep: dict) -> None:
     print(f"inliers: {rep['num_inliers']} of {rep['source_keypoints']} source keypoints "
           f"(fitness {rep['fitness']:.3f}), RMSE {rep['inlier_rmse']:.4f} m, "
           f"{rep['feature_inliers']} feature matches agree")
-    visibility = rep["visibility"]
-    if visibility["worst"] is not None:
-        print(f"free space: {100 * visibility['worst']:.1f} % of a cloud inside space the other sensor saw through")
+    worst = rep["visibility"]["worst_free_space"]
+    if worst is not None:
+        print(f"free space: {100 * worst:.1f} % of a cloud inside space the other sensor saw through")
     print("stages: " + ", ".join(f"{k} {v}" for k, v in rep["stage_sizes"].items()))
     print("timings [s]: " + ", ".join(f"{k} {v:.3f}" for k, v in rep["timings"].items()))
     if "rotation_error_deg" in rep:

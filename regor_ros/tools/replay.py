@@ -76,7 +76,7 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
     from rosbags.typesys import Stores, get_typestore
 
     from ..ros.localizer import Localizer
-    from ..ros.messages import matrix_from_pose, stamp_seconds
+    from ..ros.messages import matrix_from_pose, stamp_nanoseconds, stamp_seconds
     from ..ros.pointcloud import cloud_to_xyz
     from ..ros.watchdog import TrackedPose
     outcomes, checks = {}, []
@@ -105,7 +105,8 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
                 stamp = stamp_seconds(message.header)
                 if connection in odometry:
                     counts["odometry"] += 1
-                    localizer.add_odometry(stamp, matrix_from_pose(message.pose.pose) @ settings.odometry_extrinsic())
+                    T_odom_scan = matrix_from_pose(message.pose.pose) @ settings.odometry_extrinsic()
+                    localizer.context.add_odometry(stamp, T_odom_scan)
                 elif connection in references:
                     counts["reference"] += 1
                     reference.append((stamp, _pose_of(message, connection.msgtype)))
@@ -122,7 +123,8 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
                                           f"{exc}") from None
                     due = stamp >= last + every
                     start = time.perf_counter()
-                    answer = localizer.replay(message.header, stamp, points, due, check_it=bool(tracked))
+                    answer = localizer.replay(message.header.frame_id, stamp_nanoseconds(message.header), points,
+                                              due, check_it=bool(tracked))
                     if answer is not None:
                         last = stamp
                         outcome = outcomes.pop(answer.serial, None)
@@ -140,7 +142,7 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
         reader.close()
     if not counts["scans"]:
         raise ReplayError(f"{scan_topic}: no messages in the bag")
-    return registrations, reference, counts, localizer.map, checks
+    return registrations, reference, counts, localizer.maps.prepared, checks
 
 
 def nearest_reference(stamp: float, reference: list[tuple[float, np.ndarray]]) -> np.ndarray | None:

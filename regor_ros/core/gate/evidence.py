@@ -112,7 +112,7 @@ def log10_false_alarms(agreeing: int, trials: int, chance: float, tests: int) ->
 def log10_binomial_tail(at_least: int, trials: int, p: float) -> float:
     """log10 P(X >= at_least) for X ~ Binomial(trials, p), at_least >= 1: the regularised
     incomplete beta I_p(at_least, trials - at_least + 1), which is what scipy.stats' binomial
-    survival function evaluates (the same bits; scipy.stats itself costs 0.7 s to import). More
+    survival function evaluates (the same bits, without importing scipy.stats, which is slow). More
     than ``trials`` (greedy independent subsets can outnumber their superset's) has probability 0."""
     if at_least > trials:
         return float("-inf")

@@ -1,6 +1,7 @@
 """The one judge of a pose: every check, in order, each with its reason.
 
-The pipeline measures a pose's figures (gate/measure.py) and calls ``judge``; regor-calibrate-gate
+The pipeline measures a pose's figures (gate/measure.py) and calls ``judge`` once, on the pose it
+keeps; regor-calibrate-gate
 rebuilds the figures from the benchmark's CSVs and calls ``passes`` with the thresholds it tries, so
 the calibration cannot drift from the gate. Each check's test is written on numpy arrays: figures
 (one entry per pose) and thresholds (an array of values to try) broadcast against each other.
@@ -21,11 +22,14 @@ The checks, in the order a reason names the first that fails:
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from ..config import AcceptanceConfig
 from ..places import another_answer
 from .figures import Figures
 
@@ -38,83 +42,121 @@ def _per_pose(value):
     return np.expand_dims(value, -1)
 
 
-def rival_chances(f: Figures, a):
+def rival_chances(figures: Figures, acceptance: AcceptanceConfig):
     """Each rival's lead chance (gate/rivals.py), NaN for one that is no contender: not another
     answer (places.another_answer: it leaves the source where the pose put it), failing a
     visibility check, or short of what a pose must have to be judged at all (min_inliers,
     min_fitness, min_feature_inliers; the rival's counts are the pose's scaled by its ratios). A
     turn that keeps a tenth of the overlap is no second pose, however few matches the pose has.
     Over the last axis (the rivals)."""
-    r = f.rivals
+    r, at_least = figures.rivals, acceptance
     with np.errstate(invalid="ignore"):
         counts = (another_answer(r.moved_tau, r.distance_deg)
-                  & ~(r.violation > _per_pose(a.max_free_space_violation))
-                  & ~(r.opposite_sides > _per_pose(a.max_opposite_sides))
-                  & (r.inlier_ratio * _per_pose(f.num_inliers) >= _per_pose(a.min_inliers))
-                  & (r.inlier_ratio * _per_pose(f.fitness) >= _per_pose(a.min_fitness))
-                  & (r.feature_ratio * _per_pose(f.feature_inliers) >= _per_pose(a.min_feature_inliers)))
+                  & ~(r.violation > _per_pose(at_least.max_free_space_violation))
+                  & ~(r.opposite_sides > _per_pose(at_least.max_opposite_sides))
+                  & (r.inlier_ratio * _per_pose(figures.num_inliers) >= _per_pose(at_least.min_inliers))
+                  & (r.inlier_ratio * _per_pose(figures.fitness) >= _per_pose(at_least.min_fitness))
+                  & (r.feature_ratio * _per_pose(figures.feature_inliers) >= _per_pose(at_least.min_feature_inliers)))
     return np.where(counts, r.lead_chance, np.nan)
 
 
-def ambiguity(f: Figures, a):
+def ambiguity(figures: Figures, acceptance: AcceptanceConfig):
     """How well the evidence tells the pose from its rivals: the largest of the contenders' lead
     chances (NaN when there is none)."""
-    return np.fmax.reduce(rival_chances(f, a), axis=-1, initial=np.nan)
+    return np.fmax.reduce(rival_chances(figures, acceptance), axis=-1, initial=np.nan)
 
 
-def _beyond_chance(log10_false_alarms, a):
-    return log10_false_alarms <= np.log10(a.max_false_alarms)
+def undecided(figures: Figures, acceptance: AcceptanceConfig):
+    """Which rivals the evidence cannot tell from the pose (over the last axis): the poses a user
+    should see beside it."""
+    return rival_chances(figures, acceptance) > acceptance.max_ambiguity
 
 
-def _chance_reason(f: Figures, a) -> str:
-    surfaces = ("" if np.isnan(f.surface_log10_false_alarms) else
-                f", and {f.surface_cells_agreeing:.0f} of {f.surface_cells:.0f} independent cells on the target's "
-                f"surfaces (wrong poses refined there: up to {100 * f.surface_chance:.0f} %) in about "
-                f"10^{f.surface_log10_false_alarms:.1f}")
-    return (f"chance alone gives {f.independent_agreeing:.0f} independent agreeing feature matches in about "
-            f"10^{f.log10_false_alarms:.1f} of the poses this search tried{surfaces} "
-            f"(acceptance.max_false_alarms={a.max_false_alarms}): too little support for a target this size")
+def _beyond_chance(log10_false_alarms, acceptance: AcceptanceConfig):
+    return log10_false_alarms <= np.log10(acceptance.max_false_alarms)
 
 
-def carried_by(f: Figures, a) -> str:
+def _chance_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    surfaces = ("" if np.isnan(figures.surface_log10_false_alarms) else
+                f", and {figures.surface_cells_agreeing:.0f} of {figures.surface_cells:.0f} independent cells "
+                f"on the target's surfaces (wrong poses refined there: up to {100 * figures.surface_chance:.0f} %) "
+                f"in about 10^{figures.surface_log10_false_alarms:.1f}")
+    return (f"chance alone gives {figures.independent_agreeing:.0f} independent agreeing feature matches in about "
+            f"10^{figures.log10_false_alarms:.1f} of the poses this search tried{surfaces} "
+            f"(acceptance.max_false_alarms={acceptance.max_false_alarms}): too little support for a target this size")
+
+
+def carried_by(figures: Figures, acceptance: AcceptanceConfig) -> str:
     """Which test against chance a pose passes: its feature matches, else its surfaces."""
-    if _beyond_chance(f.log10_false_alarms, a):
+    if _beyond_chance(figures.log10_false_alarms, acceptance):
         return "feature matches"
-    return "surfaces" if _beyond_chance(f.surface_log10_false_alarms, a) else ""
+    return "surfaces" if _beyond_chance(figures.surface_log10_false_alarms, acceptance) else ""
 
 
-def singled_out(f: Figures, a):
+def singled_out(figures: Figures, acceptance: AcceptanceConfig):
     """Whether the feature matches single the pose out: it leads every rival that is another
     answer (its symmetric twins and the search's other places, each refined, whatever their
     free space) beyond what a tie gives (lead chance at most acceptance.max_ambiguity). The
     count min_feature_inliers stands in for lookalikes nobody measured (the same room turned, the
     next bay of a shelf); where every lookalike the pair offers was measured and lost, the count
     has nothing left to stop. False without such a rival."""
-    r = f.rivals
+    r = figures.rivals
     with np.errstate(invalid="ignore"):
         other = another_answer(r.moved_tau, r.distance_deg)
-        lost = r.lead_chance <= _per_pose(a.max_ambiguity)
+        lost = r.lead_chance <= _per_pose(acceptance.max_ambiguity)
     return np.any(other, axis=-1) & np.all(~other | lost, axis=-1)
 
 
-def _needed_features(f: Figures, a):
+def _needed_features(figures: Figures, acceptance: AcceptanceConfig):
     """The feature count a pose needs: 0 where free space was checked from both sides and either
     its surfaces carried it against chance (a sparse scan has a few matches even when right, and
     the count was fitted for the feature test's poses) or its features single it out among every
     other answer measured (singled_out); where free space was not checked both ways, the features
     must still stand on their own."""
-    waived = _beyond_chance(f.surface_log10_false_alarms, a) | singled_out(f, a)
-    return np.where(f.both_sides, np.where(waived, 0, a.min_feature_inliers), a.min_feature_inliers_partial)
+    waived = _beyond_chance(figures.surface_log10_false_alarms, acceptance) | singled_out(figures, acceptance)
+    full = np.where(waived, 0, acceptance.min_feature_inliers)
+    return np.where(figures.both_sides, full, acceptance.min_feature_inliers_partial)
 
 
-def _features_reason(f: Figures, a) -> str:
-    if f.both_sides:
-        name, needed, why = "min_feature_inliers", a.min_feature_inliers, ""
+def _features_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    if figures.both_sides:
+        name, needed, why = "min_feature_inliers", acceptance.min_feature_inliers, ""
     else:  # visibility cannot catch what it would have: features must stand on their own
-        name, needed, why = ("min_feature_inliers_partial", a.min_feature_inliers_partial,
+        name, needed, why = ("min_feature_inliers_partial", acceptance.min_feature_inliers_partial,
                              ": free space was not checked from both sides, a viewpoint is unknown "
                              "or too little of one cloud is in the other's view")
-    return f"only {f.feature_inliers:.0f} feature matches agree with the pose (acceptance.{name}={needed}{why})"
+    return f"only {figures.feature_inliers:.0f} feature matches agree with the pose (acceptance.{name}={needed}{why})"
+
+
+def _free_space_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    return (f"{100 * figures.worst_free_space:.0f} % of one cloud lies in space the other sensor saw through "
+            f"(acceptance.max_free_space_violation={acceptance.max_free_space_violation}): surfaces pass "
+            "through each other, the pose is wrong")
+
+
+def _both_sides_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    return (f"both sensors saw through the other cloud's surfaces ({100 * figures.free_space_source:.1f} % "
+            f"and {100 * figures.free_space_target:.1f} % of the keypoints, "
+            f"acceptance.max_free_space_both_sides={acceptance.max_free_space_both_sides}): a correct pose's "
+            "conflicts are one sensor's artefacts, surfaces that pass through each other show from both sides; "
+            "the pose is wrong")
+
+
+def _ambiguity_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    return ("ambiguous: two poses fit. Another pose (the pose turned about the scene's symmetry: a box room's "
+            "quarter turn, a corridor's half turn; or another place the search found: the next bay of a shelf) "
+            "passes the visibility checks too, and a tie would give this pose its lead in the independent "
+            f"feature matches only one of the two explains with probability {ambiguity(figures, acceptance):.2f} "
+            f"(acceptance.max_ambiguity={acceptance.max_ambiguity}); the rival is among the candidates")
+
+
+def _slide_reason(figures: Figures, acceptance: AcceptanceConfig) -> str:
+    return (f"ambiguous: only {figures.weakest_support:.2f} independent neighbourhoods of surface face the "
+            f"direction the overlap pins least (acceptance.min_weakest_support={acceptance.min_weakest_support}): "
+            "slid along it past a repeated structure (a bookshelf's bays, a row of doors) the pose fits as well")
+
+
+Test = Callable[[Figures, AcceptanceConfig], Any]
 
 
 @dataclass(frozen=True)
@@ -122,85 +164,120 @@ class Check:
     """One check of the gate: its name (Verdict.failed), its test and its reason."""
 
     name: str
-    fails: Callable   # (figures, acceptance) -> bool, or a bool array where either holds arrays
-    reason: Callable  # (figures, acceptance) -> str, for one pose
+    fails: Test    # a bool, or a bool array where the figures or the thresholds hold arrays
+    reason: Callable[[Figures, AcceptanceConfig], str]  # for one pose
 
 
 # NaN compares False: a figure not measured fails no check
 CHECKS = (
-    Check("min_inliers", lambda f, a: f.num_inliers < a.min_inliers,
-          lambda f, a: f"only {f.num_inliers:.0f} inliers (acceptance.min_inliers={a.min_inliers})"),
-    Check("constrained", lambda f, a: ~np.asarray(f.constrained, dtype=bool),
-          lambda f, a: "the inliers do not constrain all six degrees of freedom (plane or line?)"),
-    Check("min_fitness", lambda f, a: f.fitness < a.min_fitness,
-          lambda f, a: f"fitness {f.fitness:.3f} below acceptance.min_fitness={a.min_fitness}"),
-    Check("gravity_tilt", lambda f, a: ~np.asarray(f.tilt_inside, dtype=bool),
-          lambda f, a: (f"the pose tilts the source's up by {f.tilt_deg:.1f} deg from the target's "
-                        f"(gravity.max_tilt={f.tilt_allowed_deg:g}): tipped over")),
-    Check("gravity_height", lambda f, a: ~np.asarray(f.height_inside, dtype=bool),
-          lambda f, a: (f"the pose puts the source's sensor {f.height_offset:+.2f} m from the height the "
-                        f"target was seen from, {f.height_distance:.1f} m away (allowed {f.height_allowed:.2f} m: "
-                        "gravity.height_tolerance plus gravity.max_slope over that distance)")),
-    Check("min_surface_agreement", lambda f, a: f.surface_agreement < a.min_surface_agreement,
-          lambda f, a: (f"only {100 * f.surface_agreement:.0f} % of the overlap lies on the target's surfaces "
-                        f"at the keypoint spacing (acceptance.min_surface_agreement={a.min_surface_agreement}): "
-                        "the clouds touch, they do not coincide")),
-    Check("max_false_alarms", lambda f, a: (~_beyond_chance(f.log10_false_alarms, a)
-                                             & ~_beyond_chance(f.surface_log10_false_alarms, a)), _chance_reason),
-    Check("min_feature_inliers", lambda f, a: f.feature_inliers < _needed_features(f, a), _features_reason),
-    Check("max_free_space_violation", lambda f, a: f.worst_free_space > a.max_free_space_violation,
-          lambda f, a: (f"{100 * f.worst_free_space:.0f} % of one cloud lies in space the other sensor saw "
-                        f"through (acceptance.max_free_space_violation={a.max_free_space_violation}): "
-                        "surfaces pass through each other, the pose is wrong")),
-    Check("max_free_space_both_sides", lambda f, a: f.both_sides_free_space > a.max_free_space_both_sides,
-          lambda f, a: (f"both sensors saw through the other cloud's surfaces ({100 * f.free_space_source:.1f} % "
-                        f"and {100 * f.free_space_target:.1f} % of the keypoints, "
-                        f"acceptance.max_free_space_both_sides={a.max_free_space_both_sides}): a correct pose's "
-                        "conflicts are one sensor's artefacts, surfaces that pass through each other show from "
-                        "both sides; the pose is wrong")),
-    Check("max_opposite_sides", lambda f, a: f.opposite_sides > a.max_opposite_sides,
-          lambda f, a: (f"{100 * f.opposite_sides:.0f} % of the shared surface was seen from opposite sides "
-                        f"(acceptance.max_opposite_sides={a.max_opposite_sides}): the clouds are back to back, "
-                        "the pose is wrong")),
-    Check("max_ambiguity", lambda f, a: ambiguity(f, a) > a.max_ambiguity,
-          lambda f, a: (f"ambiguous: two poses fit. Another pose (the pose turned about the scene's symmetry: "
-                        "a box room's quarter turn, a corridor's half turn; or another place the search found: "
-                        "the next bay of a shelf) passes the visibility checks too, and a tie would give this "
-                        f"pose its lead in the independent feature matches only one of the two explains with "
-                        f"probability {ambiguity(f, a):.2f} (acceptance.max_ambiguity={a.max_ambiguity}); "
-                        "the rival is among the candidates")),
-    Check("min_weakest_support", lambda f, a: f.weakest_support < a.min_weakest_support,
-          lambda f, a: (f"ambiguous: only {f.weakest_support:.2f} independent neighbourhoods of surface face the "
-                        f"direction the overlap pins least (acceptance.min_weakest_support={a.min_weakest_support}): "
-                        "slid along it past a repeated structure (a bookshelf's bays, a row of doors) the pose "
-                        "fits as well")),
-    Check("search_region", lambda f, a: f.region_offset > f.region_radius,
-          lambda f, a: (f"the pose puts the source {f.region_offset:.1f} m from the hinted position, outside "
-                        f"its {f.region_radius:.1f} m search region")),
+    Check("min_inliers", lambda figures, acceptance: figures.num_inliers < acceptance.min_inliers,
+          lambda figures, acceptance: (f"only {figures.num_inliers:.0f} inliers "
+                                       f"(acceptance.min_inliers={acceptance.min_inliers})")),
+    Check("constrained", lambda figures, _: ~np.asarray(figures.constrained, dtype=bool),
+          lambda figures, _: "the inliers do not constrain all six degrees of freedom (plane or line?)"),
+    Check("min_fitness", lambda figures, acceptance: figures.fitness < acceptance.min_fitness,
+          lambda figures, acceptance: (f"fitness {figures.fitness:.3f} below "
+                                       f"acceptance.min_fitness={acceptance.min_fitness}")),
+    Check("gravity_tilt", lambda figures, _: ~np.asarray(figures.tilt_inside, dtype=bool),
+          lambda figures, _: (f"the pose tilts the source's up by {figures.tilt_deg:.1f} deg from the target's "
+                              f"(gravity.max_tilt={figures.tilt_allowed_deg:g}): tipped over")),
+    Check("gravity_height", lambda figures, _: ~np.asarray(figures.height_inside, dtype=bool),
+          lambda figures, _: (f"the pose puts the source's sensor {figures.height_offset:+.2f} m from the height "
+                              f"the target was seen from, {figures.height_distance:.1f} m away (allowed "
+                              f"{figures.height_allowed:.2f} m: gravity.height_tolerance plus gravity.max_slope "
+                              "over that distance)")),
+    Check("min_surface_agreement",
+          lambda figures, acceptance: figures.surface_agreement < acceptance.min_surface_agreement,
+          lambda figures, acceptance: (f"only {100 * figures.surface_agreement:.0f} % of the overlap lies on the "
+                                       "target's surfaces at the keypoint spacing (acceptance.min_surface_agreement="
+                                       f"{acceptance.min_surface_agreement}): the clouds touch, they do not coincide")),
+    Check("max_false_alarms",
+          lambda figures, acceptance: (~_beyond_chance(figures.log10_false_alarms, acceptance)
+                                       & ~_beyond_chance(figures.surface_log10_false_alarms, acceptance)),
+          _chance_reason),
+    Check("min_feature_inliers",
+          lambda figures, acceptance: figures.feature_inliers < _needed_features(figures, acceptance),
+          _features_reason),
+    Check("max_free_space_violation",
+          lambda figures, acceptance: figures.worst_free_space > acceptance.max_free_space_violation,
+          _free_space_reason),
+    Check("max_free_space_both_sides",
+          lambda figures, acceptance: figures.both_sides_free_space > acceptance.max_free_space_both_sides,
+          _both_sides_reason),
+    Check("max_opposite_sides", lambda figures, acceptance: figures.opposite_sides > acceptance.max_opposite_sides,
+          lambda figures, acceptance: (f"{100 * figures.opposite_sides:.0f} % of the shared surface was seen from "
+                                       f"opposite sides (acceptance.max_opposite_sides={acceptance.max_opposite_sides})"
+                                       ": the clouds are back to back, the pose is wrong")),
+    Check("max_ambiguity", lambda figures, acceptance: ambiguity(figures, acceptance) > acceptance.max_ambiguity,
+          _ambiguity_reason),
+    Check("min_weakest_support",
+          lambda figures, acceptance: figures.weakest_support < acceptance.min_weakest_support, _slide_reason),
+    Check("search_region", lambda figures, _: figures.region_offset > figures.region_radius,
+          lambda figures, _: (f"the pose puts the source {figures.region_offset:.1f} m from the hinted position, "
+                              f"outside its {figures.region_radius:.1f} m search region")),
     Check("reverse_check",
-          lambda f, a: (f.reverse_turn_deg >= REVERSE_MAX_DEG) | (f.reverse_offset_tau >= REVERSE_MAX_TAU),
-          lambda f, a: (f"registering target to source gives another pose ({f.reverse_turn_deg:.0f} deg, "
-                        f"{f.reverse_offset_tau:.1f} inlier thresholds away): a different place or an ambiguous "
-                        "scene (acceptance.reverse_check)")),
+          lambda figures, _: ((figures.reverse_turn_deg >= REVERSE_MAX_DEG)
+                              | (figures.reverse_offset_tau >= REVERSE_MAX_TAU)),
+          lambda figures, _: (f"registering target to source gives another pose ({figures.reverse_turn_deg:.0f} deg, "
+                              f"{figures.reverse_offset_tau:.1f} inlier thresholds away): a different place or an "
+                              "ambiguous scene (acceptance.reverse_check)")),
 )
 MEASURABLE = CHECKS[:5]  # the checks before which a pose's rivals are not worth refining
 FREE_SPACE_CHECKS = tuple(check for check in CHECKS if check.name.startswith("max_free_space"))
 PASSED = len(CHECKS)
 
 
-def first_failure(figures: Figures, acceptance, checks=CHECKS):
+def first_failure(figures: Figures, acceptance: AcceptanceConfig, checks: tuple[Check, ...] = CHECKS):
     """The index in ``checks`` of the first check each pose fails; len(checks) where it passes all."""
-    first = len(checks)
+    first: Any = len(checks)
     with np.errstate(invalid="ignore"):
         for index in reversed(range(len(checks))):
             first = np.where(checks[index].fails(figures, acceptance), index, first)
     return first
 
 
-def passes(figures: Figures, acceptance, checks=CHECKS):
+def passes(figures: Figures, acceptance: AcceptanceConfig, checks: tuple[Check, ...] = CHECKS):
     """Whether each pose passes every one of ``checks`` (bool, or an array where figures or
     thresholds are arrays)."""
     return first_failure(figures, acceptance, checks) == len(checks)
+
+
+@dataclass(frozen=True)
+class Rules:
+    """The judge's predicates under one acceptance config, for the modules that measure (which
+    import no judge) to ask before they pay for a figure, or to read a figure as the judge would."""
+
+    acceptance: AcceptanceConfig
+
+    def measurable(self, figures: Figures) -> bool:
+        """Whether the pose passes the checks that make its rivals worth refining (MEASURABLE)."""
+        return bool(passes(figures, self.acceptance, MEASURABLE))
+
+    def chance_explains(self, log10_false_alarms: float) -> bool:
+        """Whether chance gives this support more often than acceptance.max_false_alarms allows."""
+        return bool(log10_false_alarms > np.log10(self.acceptance.max_false_alarms))
+
+    def surfaces_may_carry(self, figures: Figures) -> bool:
+        """Whether the surfaces' test against chance can change the verdict: the feature matches
+        fail theirs and the pose passes every other check (their feature count included, which a
+        pose the surfaces carry does not need: _needed_features)."""
+        unless_chance = dataclasses.replace(self.acceptance, max_false_alarms=np.inf, min_feature_inliers=0)
+        return self.chance_explains(figures.log10_false_alarms) and bool(passes(figures, unless_chance))
+
+    def contends(self, lead_chance: float) -> bool:
+        """Whether a rival is close enough in lead that its own figures may matter (max_ambiguity)."""
+        return bool(lead_chance > self.acceptance.max_ambiguity)
+
+    def free_space_passes(self, figures: Figures) -> bool:
+        """Whether the pose passes the free-space checks (FREE_SPACE_CHECKS: each side's, and both
+        at once)."""
+        return bool(passes(figures, self.acceptance, FREE_SPACE_CHECKS))
+
+    def sees_through(self, seen: int, inside: int) -> bool:
+        """Whether more than max_free_space_violation of the ``seen`` points lie in the free space
+        (too few seen to tell does not)."""
+        acceptance = self.acceptance
+        return seen >= acceptance.free_space_min_seen and inside > acceptance.max_free_space_violation * seen
 
 
 @dataclass(frozen=True)
@@ -215,7 +292,7 @@ class Verdict:
     singled_out: bool = False  # its feature matches beat every other answer measured (min_feature_inliers waived)
 
 
-def judge(figures: Figures, acceptance) -> Verdict:
+def judge(figures: Figures, acceptance: AcceptanceConfig) -> Verdict:
     """The verdict on one pose, naming the first check it fails."""
     index = int(first_failure(figures, acceptance))
     level = float(ambiguity(figures, acceptance))

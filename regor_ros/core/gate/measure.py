@@ -1,12 +1,14 @@
 """Measure every figure the gate judges a pose on (gate/figures.py), whatever the verdict, so a
 user and the calibration see all of them. The rivals cost a refinement each: they are measured
-only for a pose that passes the checks that make it measurable (judge.MEASURABLE); the surfaces'
-test against chance (a dozen refinements) only for a pose whose feature matches fail theirs and
-that passes every other check: only then can it change the verdict."""
+only for a pose that passes the checks that make it measurable; the surfaces' test against chance
+(a dozen refinements) only for a pose whose feature matches fail theirs and that passes every other
+check: only then can it change the verdict. Which is which, the judge's rules say (judge.Rules):
+nothing here compares a figure with a threshold."""
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,11 +20,13 @@ from ..metrics import rotation_error_deg, translation_error
 from ..search_region import SearchRegion
 from .evidence import Evidence, evidence, log10_false_alarms
 from .figures import Figures
-from .judge import MEASURABLE, passes, rival_chances
 from .rivals import rivals
 from .slide import weakest_support
 from .surface_evidence import SurfaceEvidence, surface_evidence
 from .visibility import VisibilityFigures, visibility_figures
+
+if TYPE_CHECKING:
+    from .judge import Rules
 
 
 @dataclass
@@ -35,15 +39,10 @@ class Measured:
     surfaces: SurfaceEvidence | None = None  # the surfaces' test, when it was run
     rival_poses: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4, 4)))  # one per rival
 
-    def undecided_rivals(self, acceptance) -> np.ndarray:
-        """The rivals' poses that the evidence cannot tell from the pose: the poses a user should
-        see beside it."""
-        return self.rival_poses[rival_chances(self.figures, acceptance) > acceptance.max_ambiguity]
 
-
-def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple,
+def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple, *,
             covariance: np.ndarray, uncertainty: tuple[float, float], hypotheses: int, places: list,
-            config: RegorConfig, prior: GravityPrior | None = None) -> Measured:
+            config: RegorConfig, rules: Rules, prior: GravityPrior | None = None) -> Measured:
     """The figures of the refined pose T_target_source. ``matches`` are the feature matches
     (source points, target points, which of them agree with the pose within
     initial.inlier_threshold); ``uncertainty`` how well a right pose is known at this resolution
@@ -68,18 +67,16 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         weakest_support=slide_support,
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
     rival_poses = np.zeros((0, 4, 4))
-    if passes(figures, config.acceptance, MEASURABLE):
+    if rules.measurable(figures):
         def against_chance(agreeing: int) -> float:
             return log10_false_alarms(agreeing, support.independent_matches, support.chance, hypotheses)
-        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, prior, against_chance)
+        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, rules.contends,
+                                            prior, against_chance)
         figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
-    bound = np.log10(config.acceptance.max_false_alarms)
     # the surfaces can carry a pose the features do not: measured where nothing else withholds it
-    # (their feature count included, which a pose the surfaces carry does not need: judge.py)
-    unless_chance = dataclasses.replace(config.acceptance, max_false_alarms=np.inf, min_feature_inliers=0)
-    if figures.log10_false_alarms > bound and passes(figures, unless_chance):
-        surfaces = surface_evidence(T, source, target, config, hypotheses, bound, prior)
+    if rules.surfaces_may_carry(figures):
+        surfaces = surface_evidence(T, source, target, config, hypotheses, rules.chance_explains, prior)
         figures = dataclasses.replace(
             figures, surface_log10_false_alarms=surfaces.log10_false_alarms, surface_cells=surfaces.cells,
             surface_cells_agreeing=surfaces.agreeing, surface_chance=surfaces.chance)
@@ -111,6 +108,6 @@ def reverse_figures(T: np.ndarray, returned: np.ndarray, inlier_threshold: float
     """How far registering target to source (``returned``: its pose inverted) lands from ``T``
     (Figures' reverse fields). Box-like rooms of different places can align with as much feature
     support as a true low-overlap pair, but the reverse search then lands elsewhere; a true pose
-    comes back (measured: 59 of 59)."""
+    comes back."""
     return {"reverse_turn_deg": float(rotation_error_deg(T, returned)),
             "reverse_offset_tau": float(translation_error(T, returned)) / inlier_threshold}

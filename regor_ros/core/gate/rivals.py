@@ -27,6 +27,8 @@ means the evidence cannot tell the two apart (gate/judge.py's ambiguity).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -40,7 +42,7 @@ from ..initial import same_place
 from ..metrics import rotation_error_deg
 from .evidence import independent, log10_binomial_tail
 from .figures import RivalFigures
-from .visibility import visibility_figures
+from .visibility import free_space_figures
 
 RIVAL_POINTS = 1000   # evenly spaced source keypoints on which the pose and its rivals are compared
 QUARTER_TURNS_DEG = (90.0, 180.0, 270.0)
@@ -145,7 +147,7 @@ def lead_chance(own: int, rival: int) -> float:
 
 
 def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
-           source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+           source: PreparedCloud, target: PreparedCloud, config: RegorConfig, contends: Callable[[float], bool],
            prior: GravityPrior | None = None, against_chance=None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
@@ -159,7 +161,7 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
-    est, gate, tau = config.estimation, config.acceptance, config.initial.inlier_threshold
+    est, tau = config.estimation, config.initial.inlier_threshold
     radius = config.features.fpfh_radius
     sample = evenly_spaced(source.points, RIVAL_POINTS)
     own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
@@ -180,9 +182,10 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
         # leads makes nothing ambiguous whatever it shows, so it is not measured, nor its own
         # matches against chance
         worst = opposite = false_alarms = None
-        if chance > gate.max_ambiguity:
-            visibility = visibility_figures(refined.transform, source, target, gate, refined.target_index)
-            worst, opposite = visibility.worst, visibility.opposite_sides
+        if contends(chance):
+            visibility = free_space_figures(refined.transform, source, target, config.acceptance,
+                                            refined.target_index)
+            worst, opposite = visibility.worst_free_space, visibility.opposite_sides
             if against_chance is not None:
                 false_alarms = against_chance(len(independent(pairs[0][agree], radius)))
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),

@@ -4,7 +4,7 @@ Shelves of books, a row of cabinets, a corridor's doors: surfaces that face ever
 Along that direction the position rests on the few surfaces that face it (the shelves' dividers),
 and where those repeat, the pose slid by one repetition fits as well: every other check passes,
 free space is not violated, the overlap lies on the surfaces and the features agree (3DMatch's
-studyroom, normals facing the sensors: ten published poses slid 0.5-1.3 m along a bookshelf, each
+studyroom, normals facing the sensors: published poses slid along a bookshelf by one bay, each
 with a hundred agreeing matches). The figure: the overlap's surface normals summed as n n^T, each
 independent neighbourhood (one per descriptor radius, as the evidence counts) weighing one. Its
 smallest eigenvalue is how many neighbourhoods' worth of surface face the direction the surfaces

@@ -18,6 +18,7 @@ cells on the surfaces, beyond the three a rigid fit takes for free. Either test 
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,10 +70,12 @@ def cells_on_surface(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
 
 
 def surface_evidence(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
-                     hypotheses: int, give_up_above: float, prior: GravityPrior | None = None) -> SurfaceEvidence:
+                     hypotheses: int, chance_explains: Callable[[float], bool],
+                     prior: GravityPrior | None = None) -> SurfaceEvidence:
     """The test of the refined pose ``T``; ``hypotheses`` the poses the search compared. The
-    decoys are refined one by one, and the test stops once the false alarms exceed 10^``give_up_above``
-    (the best decoy so far is enough to fail it: more can only raise the chance)."""
+    decoys are refined one by one, and the test stops once chance explains the cells
+    (``chance_explains``, given log10 of the false alarms: the best decoy so far is enough to fail
+    it, more can only raise the chance)."""
     est, voxel, radius = config.estimation, config.features.voxel_size, config.features.fpfh_radius
     cells, agreeing = cells_on_surface(T, source, target, est.inlier_threshold, voxel, radius)
     fractions: list[float] = []
@@ -84,7 +87,7 @@ def surface_evidence(T: np.ndarray, source: PreparedCloud, target: PreparedCloud
         fractions.append(decoy_agreeing / decoy_cells)
         # counted as the feature test counts: the best decoy's fraction is each cell's chance
         false_alarms = log10_false_alarms(agreeing, cells, max(fractions), hypotheses)
-        if false_alarms > give_up_above:
+        if chance_explains(false_alarms):
             break
     return SurfaceEvidence(cells, agreeing, max(fractions, default=float("nan")), len(fractions), false_alarms)
 

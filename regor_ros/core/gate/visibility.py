@@ -27,7 +27,6 @@ from ..geometry import transform_points
 from ..range_image import MIN_RANGE, seen_and_inside
 from .changed_world import unexplained_conflicts
 from .figures import NOT_MEASURED, Figures
-from .judge import FREE_SPACE_CHECKS, passes
 
 GRAZING_COSINE = 0.2  # a surface seen more obliquely than this (78 deg) has no reliable side
 
@@ -38,8 +37,8 @@ class VisibilityFigures:
     matched surface points seen from opposite sides (None when a viewpoint it needs is unknown or
     too few points count)."""
 
-    source_violation: float | None  # target keypoints inside the source sensor's free space
-    target_violation: float | None  # source keypoints inside the target sensor's free space
+    free_space_source: float | None  # target keypoints inside the source sensor's free space
+    free_space_target: float | None  # source keypoints inside the target sensor's free space
     opposite_sides: float | None = None  # matched points the two sensors saw from opposite sides
     source_seen: int = 0               # target keypoints that landed on the source's seen bins
     target_seen: int = 0
@@ -48,31 +47,21 @@ class VisibilityFigures:
     map_changed: float | None = None  # against a map: fraction of the map's keypoints the scan saw in its free
     #                                  space, but where the scan saw the map's surfaces behind (changed_world.py)
 
-    @property
-    def both_sides(self) -> bool:
-        """Each cloud was checked against the other sensor's free space."""
-        return self.source_violation is not None and self.target_violation is not None
-
-    @property
-    def worst(self) -> float | None:
-        """The larger free-space fraction (None when neither side is known)."""
-        known = [v for v in (self.source_violation, self.target_violation) if v is not None]
-        return max(known) if known else None
-
     def as_figures(self) -> dict:
         """The figures the judge reads (gate/figures.py's names; NaN: not measured)."""
         def measured(value):
-            return float("nan") if value is None else float(value)
-        return {"free_space_source": measured(self.source_violation),
-                "free_space_target": measured(self.target_violation),
+            return NOT_MEASURED if value is None else float(value)
+        return {"free_space_source": measured(self.free_space_source),
+                "free_space_target": measured(self.free_space_target),
                 "opposite_sides": measured(self.opposite_sides)}
 
     def as_dict(self):
-        """The figures as plain values, for summaries and JSON."""
-        return {"source_violation": self.source_violation, "target_violation": self.target_violation,
+        """The figures as plain values, for summaries and JSON (the worst side and whether both were
+        checked are the gate's figures: Figures.worst_free_space, Figures.both_sides)."""
+        return {"free_space_source": self.free_space_source, "free_space_target": self.free_space_target,
                 "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
-                "target_seen": self.target_seen, "map_seen": self.map_seen, "worst": self.worst,
-                "both_sides": self.both_sides, "shake_bins": self.shake_bins, "map_changed": self.map_changed}
+                "target_seen": self.target_seen, "map_seen": self.map_seen, "shake_bins": self.shake_bins,
+                "map_changed": self.map_changed}
 
 
 def _fraction(seen: int, inside: int, min_seen: int) -> float | None:
@@ -102,7 +91,7 @@ def pose_slack(uncertainty: tuple[float, float] | None, sigmas: float):
 
 
 def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                       gate: AcceptanceConfig, matched_index: np.ndarray | None = None,
+                       acceptance: AcceptanceConfig, matched_index: np.ndarray | None = None,
                        uncertainty: tuple[float, float] | None = None) -> VisibilityFigures:
     """The visibility figures of T_target_source; ``matched_index`` lists the target keypoints of
     its inlier pairs. Each side is a cloud's sensors (their range images), or, for a cloud with no
@@ -110,29 +99,30 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
     pose's ``uncertainty`` (estimate.resolution_uncertainty) each point's free-space margin grows
     by it there (acceptance.free_space_sigmas)."""
     T_inv = np.linalg.inv(T)
-    slack = pose_slack(uncertainty, gate.free_space_sigmas)
-    source_side = _side(T_inv, source, target, gate, near_only=True, slack=slack)
-    target_side = _side(T, target, source, gate, near_only=False, slack=slack)
+    slack = pose_slack(uncertainty, acceptance.free_space_sigmas)
+    source_side = _side(T_inv, source, target, acceptance, near_only=True, slack=slack)
+    target_side = _side(T, target, source, acceptance, near_only=False, slack=slack)
     sides = None
     if matched_index is not None and source.views and target.views:
         points, normals = target.points[matched_index], target.normals[matched_index]
         sides = opposite_sides(_nearest(target.viewpoints, points),
                                _nearest(transform_points(T, source.viewpoints), points),
-                               points, normals, gate.free_space_min_seen)
+                               points, normals, acceptance.free_space_min_seen)
     return VisibilityFigures(source_side[0], target_side[0], sides, source_side[1], target_side[1],
                              source_side[2] if source.map_view is not None else target_side[2],
                              max(source.shake_bins, target.shake_bins),
                              source_side[3] if target.map_view is not None else target_side[3])
 
 
-def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, gate: AcceptanceConfig,
+def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, acceptance: AcceptanceConfig,
           near_only: bool, slack=None):
     """(fraction of ``other``'s keypoints inside ``seer``'s seen free space or None, how many
     landed on seen bins, fraction of them seen: for a map side, fraction inside that the world's
     change explains: when ``other`` is a map, changed_world.py). ``near_only``: test only the
     other's keypoints within the seer's sensor range (the other may be a large map). ``slack``
     (pose_slack) widens each point's margin by its distance from the source's origin."""
-    margin, ratio, min_seen = gate.free_space_margin, gate.free_space_margin_ratio, gate.free_space_min_seen
+    margin, ratio = acceptance.free_space_margin, acceptance.free_space_margin_ratio
+    min_seen = acceptance.free_space_min_seen
     # the source frame's origin in the seer's frame: the seer is the source when near_only
     source_origin = np.zeros(3) if near_only else T_seer_other[:3, 3]
 
@@ -161,7 +151,7 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, g
         images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach, other.shake_bins)
         seen, inside = seen_and_inside(images, points, margin, ratio, widen(points))
         fraction_seen = seen / max(len(points), 1)
-        counts = seen >= min_seen and fraction_seen >= gate.map_view_min_seen
+        counts = seen >= min_seen and fraction_seen >= acceptance.map_view_min_seen
         return (inside / seen if counts else None), seen, fraction_seen, None
     return None, 0, None, None
 
@@ -173,10 +163,11 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
     return viewpoints[cKDTree(viewpoints).query(points)[1]]
 
 
-def free_space_plausible(T: np.ndarray, source: PreparedCloud, target: PreparedCloud,
-                         gate: AcceptanceConfig) -> bool:
-    """Whether the pose passes the gate's free-space checks (judge.FREE_SPACE_CHECKS: each side's,
-    and both at once), read without the pose's uncertainty (initial.free_space_selection: FS-TCD's
-    winner is the fittest hypothesis this holds for; estimation.visible_candidates)."""
-    figures = Figures(*[NOT_MEASURED] * 6, **visibility_figures(T, source, target, gate).as_figures())
-    return bool(passes(figures, gate, FREE_SPACE_CHECKS))
+def free_space_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, acceptance: AcceptanceConfig,
+                       matched_index: np.ndarray | None = None,
+                       uncertainty: tuple[float, float] | None = None) -> Figures:
+    """The pose's visibility figures alone (every other figure not measured): what the judge's
+    free-space checks read of a pose nobody measured further (FS-TCD's hypotheses, the search's
+    other places, a rival: read without the pose's uncertainty)."""
+    return Figures(*[NOT_MEASURED] * 6, **visibility_figures(T, source, target, acceptance, matched_index,
+                                                             uncertainty).as_figures())

@@ -1,0 +1,93 @@
+"""What a registration of the newest scan is given beside it, without ROS: the scans before it
+fused along odometry (accumulate_scans), its up direction from the IMU (the gravity prior) and
+the hint of where it is (initial_guess)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core import ScanHistory, SearchRegion
+from .imu_up import ImuUp
+from .inputs import Cloud
+from .report import Report
+from .shared import Shared
+
+
+@dataclass(frozen=True)
+class Hint:
+    """Where the source is thought to be (an initial guess), in the frame it was given in."""
+
+    frame_id: str
+    region: SearchRegion
+
+
+class SourceContext:
+    """The scan history, the IMU's up and the hint in force (until a pose is accepted), under the
+    shared lock."""
+
+    def __init__(self, shared: Shared, report: Report):
+        self.shared, self.report = shared, report
+        self.history = ScanHistory(self._capacity())
+        self.imu = ImuUp() if shared.settings.imu_topic else None
+        self.hint: Hint | None = None
+
+    def _capacity(self) -> int:
+        """Scans kept for accumulation: twice the scans fused, so ones without odometry can be skipped."""
+        return 2 * self.shared.settings.accumulation().scans + 2
+
+    def add_scan(self, stamp: float, points: np.ndarray) -> None:
+        """A source scan (the caller holds the lock)."""
+        self.history.add_scan(stamp, points, self._capacity())
+
+    def add_odometry(self, stamp: float, T_odom_scan: np.ndarray) -> None:
+        with self.shared.lock:
+            self.report.stats["odometry_messages"] += 1
+            self.history.add_odometry(stamp, T_odom_scan)
+
+    def add_imu(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray) -> None:
+        with self.shared.lock:
+            if self.imu is not None:
+                self.imu.add(stamp, orientation_xyzw, acceleration)
+
+    def set_hint(self, hint: Hint) -> None:
+        with self.shared.lock:
+            self.hint = hint
+            self.shared.lock.notify_all()
+
+    def gravity(self, config, settings, src: Cloud):
+        """The configuration with the source's up direction from the IMU at the scan's stamp (or
+        unknown when the IMU gave none: no prior rather than a stale one), and what it was."""
+        if self.imu is None:
+            return config, {"direction": config.gravity.source_up, "from": "gravity.source_up"}
+        with self.shared.lock:
+            up, where = self.imu.up_at(src.stamp, settings.imu_window, settings.imu_extrinsic()[:3, :3])
+        text = "unknown" if up is None else " ".join(f"{v:.6f}" for v in up)
+        return config.replace({"gravity.source_up": text}), {"direction": text, "from": where}
+
+    def region(self, hint: Hint | None, target_frame: str) -> SearchRegion | None:
+        """The hint's search region, or None; a hint in another frame is dropped with a warning."""
+        if hint is None:
+            return None
+        if hint.frame_id and hint.frame_id != target_frame:
+            with self.shared.lock:
+                if self.hint is hint:
+                    self.hint = None
+            self.report.bad_input(f"initial_guess dropped: it is in '{hint.frame_id}', the target "
+                                  f"cloud in '{target_frame}' (this node does not look up tf)")
+            return None
+        return hint.region
+
+    def source_input(self, src: Cloud, settings):
+        """(the scan alone, or fused with the scans before it along odometry (accumulate_scans);
+        the viewpoints to give register() and verify() with it; what was fused, for status). The
+        fused scans carry their own viewpoints (the scan frame's origin)."""
+        source_viewpoint, target_viewpoint = settings.viewpoints()
+        limits = settings.accumulation()
+        sequence, info = None, None
+        if limits.scans >= 2:
+            with self.shared.lock:
+                sequence, info = self.history.sequence(src.stamp, limits, source_viewpoint)
+        if sequence is None:
+            return src.points, {"source_viewpoint": source_viewpoint, "target_viewpoint": target_viewpoint}, info
+        return sequence, {"target_viewpoint": target_viewpoint}, info
