@@ -138,6 +138,14 @@ def test_measured_figures_live_in_results_not_in_the_code():
     assert not found, "figures belong in results/ and doc/benchmarks.md: " + "; ".join(found)
 
 
+def test_the_lab_reaches_the_package_through_its_public_names():
+    """lab/ scripts import regor_ros.core's face and the tools' modules, nothing behind them."""
+    behind = [(path.name, name) for path in sorted((REPO / "lab").glob("*.py"))
+              for name in _imports(path) if name.startswith("regor_ros.")
+              and not (name == "regor_ros.core" or name.startswith("regor_ros.tools."))]
+    assert not behind, f"lab scripts reaching behind the public face: {behind}"
+
+
 def test_no_class_of_the_node_does_more_than_fifteen_things():
     crowded = [f"{path.name}:{node.name} ({methods})" for path in sorted((PACKAGE / "ros").glob("*.py"))
                for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.ClassDef)

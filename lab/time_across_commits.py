@@ -5,29 +5,35 @@ of a commit, run in turn on the same quiet machine, twice each, alternating (REA
 are regor-bench --threedmatch --sample 200's (sample200.json), FPFH included, seed 0, viewpoints at
 the fragments' origins, as the benchmark runs them.
 
-Usage: python time_across_commits.py TREE DATA OUT.json
-(TREE: the source tree; DATA: ../shared/data/threedmatch)
+Usage: python lab/time_across_commits.py TREE DATA SAMPLE.json OUT.json
+(TREE: the source tree; DATA: ../shared/data/threedmatch; SAMPLE: the pairs, as
+results/singled_out/time/sample200.json)
 """
 import json
 import sys
 import time
 from pathlib import Path
 
-tree, data, out_path = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+tree, data, sample, out_path = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3]), Path(sys.argv[4])
 sys.path.insert(0, tree)
 
 import numpy as np  # noqa: E402
 
 import regor_ros  # noqa: E402
-from regor_ros.core import RegorConfig  # noqa: E402
-from regor_ros.core.metrics import rotation_error_deg, translation_error  # noqa: E402
-from regor_ros.core.pipeline import for_clouds_seen_from, prepare_cloud, register  # noqa: E402
+from regor_ros.core import (  # noqa: E402
+    RegorConfig,
+    for_clouds_seen_from,
+    prepare_cloud,
+    register,
+    rotation_error_deg,
+    translation_error,
+)
 
 assert regor_ros.__file__.startswith(tree), f"imported {regor_ros.__file__}, not the tree's"
 ORIGIN = np.zeros(3)
 config = for_clouds_seen_from(RegorConfig.preset("indoor").replace({"seed": 0}), ORIGIN, ORIGIN)
 rows = []
-for entry in json.loads(Path(__file__).with_name("sample200.json").read_text()):
+for entry in json.loads(sample.read_text()):
     folder = data / entry["scene"]
     source, target = np.load(folder / f"{entry['j']}.npy"), np.load(folder / f"{entry['i']}.npy")
     start = time.perf_counter()
