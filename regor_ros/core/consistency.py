@@ -58,7 +58,7 @@ def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:
         return np.zeros(counts.shape[:-1] + (0,), dtype=np.int64)
     # the key is exact in float32 (partitions twice as fast) below 2**24
     exact = (max(abs(counts.max()), abs(counts.min())) + 1) * n < 2 ** 24
-    key = counts.astype(np.float32 if exact else np.float64)  # a copy; negated key, smallest first
+    key: np.ndarray = counts.astype(np.float32 if exact else np.float64)  # a copy; negated key, smallest first
     key *= -n
     key -= np.arange(n - 1, -1, -1, dtype=key.dtype)
     top = np.argpartition(key, k - 1, axis=-1)[..., :k]

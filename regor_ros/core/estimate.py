@@ -114,7 +114,8 @@ def point_refine_all(starts: np.ndarray, source: np.ndarray, target: NeighbourGr
             break
         step = np.flatnonzero(moving)
         previous[step] = count[step]
-        poses[step] = kabsch_from_moments(*(m[step] for m in moments[3:]), clamp)
+        source_centroid, target_centroid, cross_covariance = (m[step] for m in moments[3:])
+        poses[step] = kabsch_from_moments(source_centroid, target_centroid, cross_covariance, clamp)
         for m, new in zip(moments, target.pair_moments(poses[step], source, threshold), strict=True):
             m[step] = new
     refined = []

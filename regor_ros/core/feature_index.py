@@ -137,10 +137,16 @@ class FeatureIndex:
     def saved(self) -> tuple[np.ndarray, np.ndarray]:
         """The trained inverted file without the features it files: (its cell centres (C, D),
         each row's cell (N,)); both empty for an exact index (rebuilt in no time)."""
-        if self.exact:
+        if self._flat is not None:
             return np.zeros((0, self._flat.shape[1]), np.float32), np.zeros(0, np.int32)
-        quantizer = self._cells.quantizer
-        return quantizer.reconstruct_n(0, quantizer.ntotal), self._cells.cell_of_each_row()
+        quantizer = self._table().quantizer
+        return quantizer.reconstruct_n(0, quantizer.ntotal), self._table().cell_of_each_row()
+
+    def _table(self) -> CellTable:
+        """The inverted file of an approximate index."""
+        if self._cells is None:
+            raise ValueError("an exact feature index has no cells")
+        return self._cells
 
     def restricted(self, rows: np.ndarray, features: np.ndarray) -> FeatureIndex:
         """An index over ``rows`` (sorted) of this one, whose results are positions in ``rows``;
@@ -151,7 +157,7 @@ class FeatureIndex:
             return FeatureIndex(features, *self._limits)
         view = object.__new__(FeatureIndex)
         view.size, view.exact, view._limits, view._flat = len(rows), False, self._limits, None
-        view._cells = self._cells.subset(np.asarray(rows, dtype=np.int64))
+        view._cells = self._table().subset(np.asarray(rows, dtype=np.int64))
         return view
 
     def nearest_and_candidates(self, queries: np.ndarray, rows: np.ndarray, k: int, back: bool = False):
@@ -190,7 +196,7 @@ class FeatureIndex:
             nearest, best, candidates, similarity, _, _ = self._exact(queries, slot, k, False)
             return (candidates, similarity) if k > 1 else (nearest[:, None], best[:, None])
         _, probes, nearest_probes = self._limits
-        return self._cells.search(queries, k, nearest_probes if k == 1 else probes)
+        return self._table().search(queries, k, nearest_probes if k == 1 else probes)
 
     def _exact(self, queries: np.ndarray, slot: np.ndarray, k: int, back: bool):
         """``kernels.flat_search`` over this index's rows, BLAS kept to one thread (the kernel's

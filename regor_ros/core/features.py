@@ -19,6 +19,7 @@ from .shake import seen_views
 
 if TYPE_CHECKING:
     from .gate.judge import Rules
+    from .range_image import RangeImage
 
 FPFH_CHUNK = 100_000  # keypoints per FPFH call: bounds its memory (about 100 MB) on a map
 
@@ -123,7 +124,8 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
             f"{name}: {n} points after downsampling at voxel_size={config.voxel_size:g} m "
             f"(from {input_size}), need at least {config.min_points}; lower features.voxel_size "
             "or send a denser cloud")
-    views, map_view, sensors, shake = (), None, cloud.viewpoints, 0
+    views: tuple[RangeImage, ...] = ()
+    map_view, sensors, shake = None, cloud.viewpoints, 0
     if cloud.viewpoints is not None:
         if trajectory is not None:
             raise RegistrationError(f"{name}: a trajectory is for a cloud without viewpoint (a map)")
@@ -141,7 +143,7 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     keypoints = np.asarray(down.points, dtype=np.float64)
     normals = np.asarray(down.normals, dtype=np.float64)
     toward = config.normals_toward_sensors and may_face_sensors and sensors is not None and len(sensors) > 0
-    if toward:
+    if toward and sensors is not None:
         normals = toward_nearest(normals, keypoints, sensors)
     features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6

@@ -104,7 +104,7 @@ class GravityPrior:
         distance, each (S,); None when not checked: no height band, the source's sensor unknown
         (its newest viewpoint is used: a fused sequence's pose is its newest scan's) or nowhere
         the target was seen from."""
-        if self.height_tolerance <= 0 or not source.views:
+        if self.height_tolerance <= 0 or not source.views or source.viewpoints is None:
             return None
         seen_from = target.viewpoints
         if seen_from is None and target.map_view is not None and len(target.map_view.trajectory):
@@ -142,3 +142,9 @@ def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
     return np.eye(3) + s * k + (1 - c) * (k @ k)
 
+
+
+def clamp_of(prior: GravityPrior | None):
+    """The prior's clamp of rotations into its tilt cone, or None without a prior (the
+    refinements' ``clamp``)."""
+    return None if prior is None else prior.clamp

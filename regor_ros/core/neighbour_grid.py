@@ -25,7 +25,7 @@ class PairMoments(NamedTuple):
 
     distance: np.ndarray            # (b, m) each query's distance to its nearest point, inf where none is within
     nearest: np.ndarray             # (b, m) that point's index
-    count: np.ndarray               # (b,) the pairs within the threshold
+    paired: np.ndarray              # (b,) the pairs within the threshold
     source_centroid: np.ndarray     # (b, 3) weighted, of the queries paired (before the pose moves them)
     target_centroid: np.ndarray     # (b, 3) weighted, of their nearest points
     cross_covariance: np.ndarray    # (b, 3, 3) sum of w (query - its centroid)(nearest - its centroid)^T
@@ -53,7 +53,7 @@ class NeighbourGrid:
 
     def __init__(self, points: np.ndarray):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
-        self._grids: dict[float, tuple] = {}
+        self._grids: dict[float, Cells] = {}
         self._lock = threading.Lock()
 
     def nearest_within(self, queries: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:

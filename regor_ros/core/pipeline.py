@@ -26,7 +26,7 @@ from .gate.figures import Figures, RivalFigures
 from .gate.judge import Rules, Verdict, judge, passes, undecided
 from .gate.measure import measure, region_figures, reverse_figures
 from .gate.visibility import VisibilityFigures, free_space_figures
-from .gravity import GravityPrior
+from .gravity import GravityPrior, clamp_of
 from .initial import initial_stage, led_by, same_place
 from .kernels import blas_on_one_thread
 from .matching import match_features
@@ -186,7 +186,7 @@ def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: 
     return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
 
 
-def _raw(cloud: CloudInput, viewpoint, name: str) -> SeenCloud | PreparedCloud:
+def _raw(cloud: SourceInput, viewpoint, name: str) -> SeenCloud | PreparedCloud:
     """The input as a raw cloud with its viewpoints, or the prepared cloud whose viewpoints the
     given one must not contradict."""
     if isinstance(cloud, PreparedCloud):
@@ -447,13 +447,13 @@ def _refine(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config:
             prior: GravityPrior | None):
     est = config.estimation
     return point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations,
-                        prior and prior.clamp)
+                        clamp_of(prior))
 
 
 def _plane_refine(refined, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
                   prior: GravityPrior | None):
     return plane_refined(refined, source.points, target.neighbours, target.normals,
-                         config.estimation.inlier_threshold, config.features.voxel_size, prior and prior.clamp)
+                         config.estimation.inlier_threshold, config.features.voxel_size, clamp_of(prior))
 
 
 def _visible_instead(refined, selected: str, candidates: list, source: PreparedCloud, target: PreparedCloud,
@@ -473,7 +473,7 @@ def _refined_all(poses: np.ndarray, source: PreparedCloud, target: PreparedCloud
     planes when configured (each pose refines as it would alone)."""
     est = config.estimation
     point_level = point_refine_all(poses, source.points, target.neighbours, est.inlier_threshold,
-                                   est.max_iterations, prior and prior.clamp)
+                                   est.max_iterations, clamp_of(prior))
     if not est.plane_refinement:
         return point_level
     return [_plane_refine(refined, source, target, config, prior) for refined in point_level]
@@ -486,7 +486,7 @@ def _estimate(seed_src, seed_tgt, T_initial, source: PreparedCloud, target: Prep
     to more inliers (compare_initial_pose)."""
     if len(seed_src) < 3:
         return _refine(T_initial, source, target, config, prior), "initial"
-    refined = _refine(weighted_kabsch(seed_src, seed_tgt, clamp=prior and prior.clamp),
+    refined = _refine(weighted_kabsch(seed_src, seed_tgt, clamp=clamp_of(prior)),
                       source, target, config, prior)
     est = config.estimation
     if est.compare_initial_pose and not poses_close(

@@ -85,7 +85,8 @@ class ScanHistory:
         if newest_pose is None:
             return None, {"scans_fused": 1, "without_odometry": 1, "more_to_fuse": 0,
                           "reason": "no odometry near the newest scan's stamp: registered alone"}
-        scans, poses, without, span = [], [], 0, 0.0
+        scans: list[np.ndarray] = []
+        poses, without, span = [], 0, 0.0
         for stamp, points in reversed(candidates):
             if len(scans) == limits.scans:
                 break

@@ -25,7 +25,7 @@ from .gate.figures import Figures
 from .gate.judge import Rules, Verdict, judge
 from .gate.measure import measure
 from .gate.visibility import VisibilityFigures
-from .gravity import GravityPrior
+from .gravity import GravityPrior, clamp_of
 from .kernels import blas_on_one_thread
 from .matching import match_features
 from .metrics import rotation_error_deg, translation_error
@@ -77,7 +77,7 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     prepared = time.perf_counter()
     prior = GravityPrior.of(config.gravity)
     est, voxel = config.estimation, config.features.voxel_size
-    clamp = prior and prior.clamp
+    clamp = clamp_of(prior)
     refined = point_refine(given, source.points, target.neighbours, est.inlier_threshold, est.max_iterations, clamp)
     if est.plane_refinement:
         refined = plane_refined(refined, source.points, target.neighbours, target.normals, est.inlier_threshold,

@@ -120,9 +120,9 @@ def log10_binomial_tail(at_least: int, trials: int, p: float) -> float:
         return float(np.log(betainc(at_least, trials - at_least + 1, p)) / np.log(10))
 
 
-def evidence(T: np.ndarray, overlap: tuple, target_points: np.ndarray, target_tree: cKDTree,
-             match_source: np.ndarray, agree: np.ndarray, resolution: float, match_tolerance: float,
-             descriptor_radius: float, hypotheses: int) -> Evidence:
+def evidence(T: np.ndarray, overlap: tuple[np.ndarray, np.ndarray, np.ndarray], target_points: np.ndarray,
+             target_tree: cKDTree, match_source: np.ndarray, agree: np.ndarray, resolution: float,
+             match_tolerance: float, descriptor_radius: float, hypotheses: int) -> Evidence:
     """The figures of the pose ``T``: ``overlap`` its (source keypoints, target keypoints, their
     normals) paired within tau_e; ``match_source`` the feature matches' source keypoints,
     ``agree`` which of them the pose brings within ``match_tolerance`` of their target;

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -122,7 +123,7 @@ class Figures:
     def from_columns(cls, row: dict) -> Figures:
         """The figures a regor-bench CSV row recorded (columns() written out); a column the CSV does
         not have keeps its default ("not measured"). ValueError names a required one missing."""
-        values = {}
+        values: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
             text = row.get(f.name)
             if text is None:
@@ -151,7 +152,7 @@ def stack(figures: list[Figures]) -> Figures:
         values = np.atleast_1d(np.asarray(values, dtype=float))
         return np.concatenate([values, np.full(most - len(values), NOT_MEASURED)])
 
-    columns = {}
+    columns: dict[str, Any] = {}
     for f in dataclasses.fields(Figures):
         if f.name == "rivals":
             columns[f.name] = RivalFigures(*(np.array([padded(getattr(one.rivals, r.name)) for one in figures])

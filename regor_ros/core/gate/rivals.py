@@ -37,7 +37,7 @@ from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import agreeing, point_refine, point_refine_all
 from ..geometry import evenly_spaced, to_matrix, transform_points
-from ..gravity import GravityPrior
+from ..gravity import GravityPrior, clamp_of
 from ..initial import same_place
 from ..metrics import rotation_error_deg
 from .evidence import independent, log10_binomial_tail
@@ -123,12 +123,13 @@ def excess(counted: np.ndarray, expected: np.ndarray) -> np.ndarray:
     return np.where(k >= expected, statistic, -statistic)
 
 
-def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple, cell: float) -> np.ndarray:
+def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple[np.ndarray, np.ndarray],
+                  cell: float) -> np.ndarray:
     """(3, 4, 4): ``T`` turned by QUARTER_TURNS_DEG about the overlap's dominant surface direction,
     each at the translation the feature matches vote for beyond chance."""
     axis = dominant_direction(overlap_normals)
     turned = Rotation.from_rotvec(np.radians(QUARTER_TURNS_DEG)[:, None] * axis).as_matrix() @ T[:3, :3]
-    return np.array([to_matrix(R, voted_translation(R, *matches, cell)) for R in turned])
+    return np.array([to_matrix(R, voted_translation(R, matches[0], matches[1], cell)) for R in turned])
 
 
 def moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
@@ -165,19 +166,20 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     radius = config.features.fpfh_radius
     sample = evenly_spaced(source.points, RIVAL_POINTS)
     own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
-    *pairs, agree_with_T = matches
+    match_source, match_target, agree_with_T = matches
     own_matches = int(agree_with_T.sum())
     others = [pose for pose in places if not same_place(pose, T, tau)][:RIVAL_PLACES]
-    starts = np.concatenate([half_turns(final_target) @ T, quarter_turns(T, target_normals, pairs, tau),
+    starts = np.concatenate([half_turns(final_target) @ T,
+                             quarter_turns(T, target_normals, (match_source, match_target), tau),
                              np.reshape(others, (-1, 4, 4))])
     if prior is not None:
         starts = starts[prior.allows(starts, source, target)]
     rows, poses = [], []
     for refined in point_refine_all(starts, sample, target.neighbours, est.inlier_threshold, est.max_iterations,
-                                    prior and prior.clamp):
-        agree = agreeing(refined.transform, *pairs, tau)
-        chance = lead_chance(len(independent(pairs[0][agree_with_T & ~agree], radius)),
-                             len(independent(pairs[0][agree & ~agree_with_T], radius)))
+                                    clamp_of(prior)):
+        agree = agreeing(refined.transform, match_source, match_target, tau)
+        chance = lead_chance(len(independent(match_source[agree_with_T & ~agree], radius)),
+                             len(independent(match_source[agree & ~agree_with_T], radius)))
         # free space is what costs (a map seen from the rival's place); a rival the pose clearly
         # leads makes nothing ambiguous whatever it shows, so it is not measured, nor its own
         # matches against chance
@@ -187,7 +189,7 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
                                             refined.target_index)
             worst, opposite = visibility.worst_free_space, visibility.opposite_sides
             if against_chance is not None:
-                false_alarms = against_chance(len(independent(pairs[0][agree], radius)))
+                false_alarms = against_chance(len(independent(match_source[agree], radius)))
         rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
                      moved(refined.transform, T, sample) / tau, false_alarms))

@@ -28,7 +28,7 @@ from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import plane_refine, plane_thresholds, point_refine
 from ..geometry import evenly_spaced, to_matrix, transform_points
-from ..gravity import GravityPrior
+from ..gravity import GravityPrior, clamp_of
 from ..metrics import rotation_error_deg, translation_error
 from .evidence import independent, log10_false_alarms, on_surface
 
@@ -101,7 +101,7 @@ def decoys(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: 
     of those of the pose came back."""
     est, tolerance = config.estimation, config.estimation.inlier_threshold
     sample = evenly_spaced(source.points, DECOY_POINTS)
-    clamp = prior and prior.clamp
+    clamp = clamp_of(prior)
     rng = np.random.default_rng([DECOY_STREAM, config.seed])
     centre = transform_points(T, source.points).mean(axis=0)
     for _ in range(DECOYS):

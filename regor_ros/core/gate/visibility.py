@@ -103,7 +103,8 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
     source_side = _side(T_inv, source, target, acceptance, near_only=True, slack=slack)
     target_side = _side(T, target, source, acceptance, near_only=False, slack=slack)
     sides = None
-    if matched_index is not None and source.views and target.views:
+    if (matched_index is not None and source.viewpoints is not None and target.viewpoints is not None
+            and source.views and target.views):
         points, normals = target.points[matched_index], target.normals[matched_index]
         sides = opposite_sides(_nearest(target.viewpoints, points),
                                _nearest(transform_points(T, source.viewpoints), points),
@@ -129,7 +130,7 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, a
     def widen(points: np.ndarray):
         return 0.0 if slack is None else slack(np.linalg.norm(points - source_origin, axis=1))
 
-    if seer.views:
+    if seer.views and seer.viewpoints is not None:
         points = other.points
         if near_only:
             reach = np.array([view.max_range for view in seer.views]) + margin
@@ -144,11 +145,11 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, a
         if seen < min_seen:
             return None, seen, None, None
         return unexplained / seen, seen, None, (inside - unexplained) / seen
-    if seer.map_view is not None and other.views:
+    if seer.map_view is not None and other.views and other.viewpoints is not None:
         # the map seen from where the pose puts the other cloud's sensors, out to their reach
         points = transform_points(T_seer_other, other.points)
-        reach = max(view.max_range for view in other.views) + margin
-        images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), reach, other.shake_bins)
+        out_to = max(view.max_range for view in other.views) + margin
+        images = seer.map_view.images(transform_points(T_seer_other, other.viewpoints), out_to, other.shake_bins)
         seen, inside = seen_and_inside(images, points, margin, ratio, widen(points))
         fraction_seen = seen / max(len(points), 1)
         counts = seen >= min_seen and fraction_seen >= acceptance.map_view_min_seen
@@ -169,5 +170,6 @@ def free_space_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
     """The pose's visibility figures alone (every other figure not measured): what the judge's
     free-space checks read of a pose nobody measured further (FS-TCD's hypotheses, the search's
     other places, a rival: read without the pose's uncertainty)."""
-    return Figures(*[NOT_MEASURED] * 6, **visibility_figures(T, source, target, acceptance, matched_index,
-                                                             uncertainty).as_figures())
+    return Figures(num_inliers=NOT_MEASURED, fitness=NOT_MEASURED, surface_agreement=NOT_MEASURED,
+                   log10_false_alarms=NOT_MEASURED, independent_agreeing=NOT_MEASURED, feature_inliers=NOT_MEASURED,
+                   **visibility_figures(T, source, target, acceptance, matched_index, uncertainty).as_figures())
