@@ -47,7 +47,7 @@ def test_a_threshold_asked_again_reuses_its_grid_and_an_empty_cloud_finds_nothin
     distance, index = NeighbourGrid(np.zeros((0, 3))).nearest_within(np.zeros((2, 3)), 0.2)
     assert np.isinf(distance).all() and (index == 0).all()
     moments = NeighbourGrid(np.zeros((0, 3))).pair_moments(np.tile(np.eye(4), (3, 1, 1)), np.zeros((2, 3)), 0.2)
-    assert moments.distance.shape == (3, 2) and np.isinf(moments.distance).all() and (moments.count == 0).all()
+    assert moments.distance.shape == (3, 2) and np.isinf(moments.distance).all() and (moments.paired == 0).all()
 
 
 def test_a_map_wide_grid_flags_its_cells_a_bit_each():

@@ -82,7 +82,7 @@ class Outputs:
         self.correspondences.publish(messages.correspondence_markers(result, header, settings.max_markers,
                                                                      settings.marker_line_width))
         self.candidates.publish(messages.candidate_poses(result, header, settings.max_candidates,
-                                                         outcome.sensor_to_base))
+                                                         outcome.T_sensor_base))
         if outcome.pose is None:
             return
         self.pose.publish(messages.pose_stamped(outcome.pose.transform, header))

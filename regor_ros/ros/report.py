@@ -38,7 +38,7 @@ class Outcome:
     target_frame: str
     status: dict       # the status message's fields beside the result's own
     pose: PublishedPose | None  # None when withheld
-    sensor_to_base: np.ndarray | None  # T_base_sensor inverted, with a base_frame (the candidates')
+    T_sensor_base: np.ndarray | None  # with a base_frame, its pose in the sensor frame (the candidates')
     answer: str        # what happened, in a line (a relocalize call's reply)
 
 

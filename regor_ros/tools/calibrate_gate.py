@@ -201,9 +201,9 @@ def score(samples: list[Sample], thresholds: Thresholds):
 
 
 def preset_thresholds(kind: str) -> Thresholds:
-    gate = RegorConfig.preset(kind).acceptance
-    return (gate.max_free_space_violation, gate.min_feature_inliers, gate.min_feature_inliers_partial,
-            gate.max_free_space_both_sides)
+    acceptance = RegorConfig.preset(kind).acceptance
+    return (acceptance.max_free_space_violation, acceptance.min_feature_inliers,
+            acceptance.min_feature_inliers_partial, acceptance.max_free_space_both_sides)
 
 
 def checked_runs(samples: list[Sample]) -> tuple[list[Sample], list[Sample]]:

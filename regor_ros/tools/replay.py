@@ -129,8 +129,8 @@ def replay(bag: Path, config: RegorConfig, settings, scan_topic: str, odom_topic
                         last = stamp
                         outcome = outcomes.pop(answer.serial, None)
                         pose = None if outcome is None else outcome.result.transform
-                        if outcome is not None and outcome.sensor_to_base is not None:
-                            pose = pose @ outcome.sensor_to_base
+                        if outcome is not None and outcome.T_sensor_base is not None:
+                            pose = pose @ outcome.T_sensor_base
                         reason = "" if answer.accepted else answer.text
                         registrations.append(Registration(stamp, answer.accepted, reason, pose,
                                                           time.perf_counter() - start))
