@@ -368,10 +368,10 @@ class RegorConfig:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
         if self.features.normal_radius < self.features.voxel_size:
             raise ConfigError("features.normal_radius must be at least features.voxel_size")
-        gate = self.acceptance
-        if gate.min_feature_inliers_partial < gate.min_feature_inliers:
-            raise ConfigError(f"acceptance.min_feature_inliers_partial={gate.min_feature_inliers_partial} must "
-                              f"not be below acceptance.min_feature_inliers={gate.min_feature_inliers} (a check "
+        acceptance = self.acceptance
+        if acceptance.min_feature_inliers_partial < acceptance.min_feature_inliers:
+            raise ConfigError(f"acceptance.min_feature_inliers_partial={acceptance.min_feature_inliers_partial} must "
+                              f"not be below acceptance.min_feature_inliers={acceptance.min_feature_inliers} (a check "
                               "that sees less needs more feature support)")
         for name in ("source_up", "target_up"):
             try:
