@@ -39,6 +39,24 @@ def test_a_pose_the_data_move_beyond_the_tolerance_is_not_verified(demo):
     assert result.correction_m > 0.1   # the correction is reported: where the data put the pose
 
 
+def test_the_correction_must_leave_room_for_the_refined_poses_own_uncertainty(demo):
+    """At the tolerance's edge the refined pose's error decides which side the truth is on: the
+    correction must be within the tolerance by the pose's uncertainty at the keypoints' resolution
+    (a voxel's standard deviation)."""
+    source, target, truth = demo
+    given = moved(truth, 0.2)
+    wide = verify(source, target, given, INDOOR.replace({"verification.max_correction": 1.0}))
+    assert wide.accepted, wide.reason
+    sigma = INDOOR.features.voxel_size / np.sqrt(12.0)
+    for room, verified in ((0.5, False), (1.5, True)):
+        edge = INDOOR.replace({"verification.max_correction": wide.correction_m + room * sigma})
+        result = verify(source, target, given, edge)
+        assert result.accepted == verified and result.within_tolerance == verified, result.reason
+        assert np.isclose(result.correction_m, wide.correction_m)
+    assert "known to" in verify(source, target, given, INDOOR.replace(
+        {"verification.max_correction": wide.correction_m + 0.5 * sigma})).reason
+
+
 def test_a_turned_room_is_not_verified(demo):
     source, target, truth = demo
     for degrees in (90.0, 180.0):

@@ -250,7 +250,8 @@ class VerificationConfig:
     count as right. The presets take the benchmarks' success tolerances."""
 
     max_correction: float = param(0.3, "largest translation by which the local refinement may move a given pose "
-                                   "and it still be verified (the correction is reported either way) [m]", 0.0, 1e6)
+                                   "and it still be verified, the refined pose's own uncertainty at the keypoints' "
+                                   "resolution included (the correction is reported either way) [m]", 0.0, 1e6)
     max_correction_deg: float = param(15.0, "largest turn by which the local refinement may move a given pose and "
                                        "it still be verified [deg]", 0.0, 180.0)
 

@@ -10,7 +10,11 @@ rivals are its symmetric twins (no search found other places); the surfaces' tes
 around the pose, carries a pose the features do not, as in register().
 A pose is verified when the refinement moved it by less than the verification tolerance and the
 gate accepts the refined pose; a pose off by more is not, whatever the refined pose is (the
-correction is reported, so a caller sees where the data put it).
+correction is reported, so a caller sees where the data put it). The refined pose is known only to
+the keypoints' resolution (estimate.resolution_uncertainty: a voxel's standard deviation, and the
+turn that moves the inliers' radius of gyration by as much), so the correction must stay within the
+tolerance by that much: at the tolerance's edge the correction and the pose's error against the
+truth fall on either side of it (results/verify_edge).
 """
 from __future__ import annotations
 
@@ -43,7 +47,7 @@ class Verification:
     given: np.ndarray          # 4x4 the pose as given
     correction_m: float        # how far the refinement moved the given pose [m]
     correction_deg: float      # and turned it [deg]
-    within_tolerance: bool     # the correction is within verification.max_correction(_deg)
+    within_tolerance: bool     # the correction and the pose's uncertainty within verification.max_correction(_deg)
     verdict: Verdict           # the gate's on the refined pose
     figures: Figures
     covariance: np.ndarray     # 6x6 of the refined pose (as register()'s)
@@ -86,19 +90,23 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     inliers_source, inliers_target = source.points[refined.source_index], target.points[refined.target_index]
     matched = target.points[matches.target_index]
     covariance = pose_covariance(T, inliers_source, inliers_target, target.normals[refined.target_index], voxel)
+    uncertainty = resolution_uncertainty(T, inliers_source, voxel)
     searched = max(1, round(config.initial.seed_ratio * min(len(source), config.initial.max_correspondences)))
     measured = measure(refined, source, target,
                        (source.points, matched, agreeing(T, source.points, matched, config.initial.inlier_threshold)),
-                       covariance=covariance, uncertainty=resolution_uncertainty(T, inliers_source, voxel),
+                       covariance=covariance, uncertainty=uncertainty,
                        hypotheses=searched, places=[], config=config, rules=Rules(config.acceptance), prior=prior)
     verdict = judge(measured.figures, config.acceptance)
     moved_m, moved_deg = translation_error(T, given), rotation_error_deg(T, given)
     tolerance = config.verification
-    within = moved_m < tolerance.max_correction and moved_deg < tolerance.max_correction_deg
+    known_m, known_deg = uncertainty[0], float(np.degrees(uncertainty[1]))
+    within = (moved_m + known_m < tolerance.max_correction
+              and moved_deg + known_deg < tolerance.max_correction_deg)
     reason = verdict.reason if within else (
-        f"the data put the pose {moved_m:.2f} m and {moved_deg:.1f} deg from where it was given "
+        f"the data put the pose {moved_m:.2f} m and {moved_deg:.1f} deg from where it was given, the "
+        f"refined pose known to {known_m:.2f} m and {known_deg:.1f} deg at this resolution "
         f"(verification.max_correction={tolerance.max_correction:g} m, max_correction_deg="
-        f"{tolerance.max_correction_deg:g}): the given pose is wrong")
+        f"{tolerance.max_correction_deg:g}): the given pose is not right within them")
     return Verification(not reason, reason, T, given, moved_m, moved_deg, within, verdict, measured.figures,
                         covariance, measured.visibility,
                         {"features": prepared - start, "total": time.perf_counter() - start})
