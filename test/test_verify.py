@@ -51,7 +51,7 @@ def test_the_correction_must_leave_room_for_the_refined_poses_own_uncertainty(de
     for room, verified in ((0.5, False), (1.5, True)):
         edge = INDOOR.replace({"verification.max_correction": wide.correction_m + room * sigma})
         result = verify(source, target, given, edge)
-        assert result.accepted == verified and result.within_tolerance == verified, result.reason
+        assert result.accepted is verified and result.within_tolerance is verified, result.reason
         assert np.isclose(result.correction_m, wide.correction_m)
     assert "known to" in verify(source, target, given, INDOOR.replace(
         {"verification.max_correction": wide.correction_m + 0.5 * sigma})).reason

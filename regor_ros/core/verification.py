@@ -99,9 +99,8 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     verdict = judge(measured.figures, config.acceptance)
     moved_m, moved_deg = translation_error(T, given), rotation_error_deg(T, given)
     tolerance = config.verification
-    known_m, known_deg = uncertainty[0], float(np.degrees(uncertainty[1]))
-    within = (moved_m + known_m < tolerance.max_correction
-              and moved_deg + known_deg < tolerance.max_correction_deg)
+    known_m, known_deg = float(uncertainty[0]), float(np.degrees(uncertainty[1]))
+    within = bool(moved_m + known_m < tolerance.max_correction and moved_deg + known_deg < tolerance.max_correction_deg)
     reason = verdict.reason if within else (
         f"the data put the pose {moved_m:.2f} m and {moved_deg:.1f} deg from where it was given, the "
         f"refined pose known to {known_m:.2f} m and {known_deg:.1f} deg at this resolution "
