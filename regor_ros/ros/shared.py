@@ -14,6 +14,9 @@ if TYPE_CHECKING:
 
 @dataclass
 class Shared:
+    """The state every part reads under ``lock``; a parameter change replaces config and settings
+    whole (Localizer.change), so a job keeps the pair it started with."""
+
     config: RegorConfig
     settings: NodeSettings
     lock: threading.Condition = field(default_factory=threading.Condition)
