@@ -10,9 +10,9 @@ from importlib import import_module
 
 # OpenMP threads waiting for the next kernel spin for some microseconds, not GNU's default of
 # about a millisecond: on a robot computer's two cores shared with other processes the spinning
-# threads took the cores the work needed (results/HISTORY.md, "Figures from the code"). GNU's runtime (numba's kernels,
-# FAISS's) reads it when it loads, which is after this package is imported unless the process
-# loaded it before; a user's own setting, or OMP_WAIT_POLICY, stands.
+# threads took the cores the work needed (results/HISTORY.md, "Figures from the code"). GNU's
+# runtime (numba's kernels, FAISS's) reads it when it loads, which is after this package is
+# imported unless the process loaded it before; a user's own setting, or OMP_WAIT_POLICY, stands.
 os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 _HOMES = {

@@ -59,9 +59,10 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     """(N, 33) float32 FPFH as Open3D computes it (its histograms; neighbourhoods of the max_nn
     nearest points within the radius, the point itself counted), compiled (kernels.fpfh_features)
     on a grid of cells the radius's size, faster than Open3D (which searches a kd-tree per point
-    and holds the GIL), the same histograms but where neighbours tie at the cut-off. A point's FPFH reads its
-    neighbours' neighbours, so a map goes through in slabs along x of ``chunk`` points, each with
-    the points within two radii around it, which bounds the memory (about 1 kB a point)."""
+    and holds the GIL), the same histograms but where neighbours tie at the cut-off. A point's
+    FPFH reads its neighbours' neighbours, so a map goes through in slabs along x of ``chunk``
+    points, each with the points within two radii around it, which bounds the memory (about 1 kB
+    a point)."""
     def histograms(rows) -> np.ndarray:
         grid = NeighbourGrid(points[rows])
         cells = grid.cells(radius)   # cells no smaller than the radius: their keys suffice

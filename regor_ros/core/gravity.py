@@ -143,7 +143,6 @@ def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * k + (1 - c) * (k @ k)
 
 
-
 def clamp_of(prior: GravityPrior | None):
     """The prior's clamp of rotations into its tilt cone, or None without a prior (the
     refinements' ``clamp``)."""

@@ -4,10 +4,10 @@ The refinements ask it 20 to 50 times per registration, every source keypoint ea
 within a small threshold (tau_e and its halves). A kd-tree answers any radius; a hashed grid of
 cells the threshold's size answers this one by looking in the query's cell and the 26 around it,
 its own first, skipping a cell that cannot hold anything nearer than what was found: the same
-nearest keypoints as the kd-tree, sooner. A grid is built the first time a threshold is asked for and kept, so
-a map pays for it once. A grid also flags its occupied cells, a bit each (a scan's grids, and a
-map's at all but its finest thresholds): a query off the surfaces (most of a rival's) then skips
-its empty neighbours for a read each.
+nearest keypoints as the kd-tree, sooner. A grid is built the first time a threshold is asked for
+and kept, so a map pays for it once. A grid also flags its occupied cells, a bit each (a scan's
+grids, and a map's at all but its finest thresholds): a query off the surfaces (most of a
+rival's) then skips its empty neighbours for a read each.
 """
 from __future__ import annotations
 

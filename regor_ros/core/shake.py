@@ -12,10 +12,10 @@ scan whose pose is registered), as the check judges a pose: its keypoints in the
 space, and the newest's in its own. A range image reads each bin's free depth as the nearest return
 within one bin; read ``blur`` bins wider, a surface another scan puts a few bins aside is no longer
 in front of it. The shake is the fewest extra bins at which no scan sees through another as the
-judge reads free space (judge.Rules.sees_through), up to MAX_SHAKE_BINS; the sequence's views, and the map seen
-from where the pose puts them, are then read that much wider. It depends on the sequence alone,
-never on a pose, so a wrong pose cannot buy a looser check; a steady sequence passes at once, and
-nothing changes for it.
+judge reads free space (judge.Rules.sees_through), up to MAX_SHAKE_BINS; the sequence's views,
+and the map seen from where the pose puts them, are then read that much wider. It depends on the
+sequence alone, never on a pose, so a wrong pose cannot buy a looser check; a steady sequence
+passes at once, and nothing changes for it.
 """
 from __future__ import annotations
 

@@ -139,7 +139,7 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, a
         points = transform_points(T_seer_other, points)
         if other.map_view is None:
             seen, inside = seen_and_inside(seer.views, points, margin, ratio, widen(points))
-            return (inside / seen if seen >= min_seen else None), seen, None, None
+            return _fraction(seen, inside, min_seen), seen, None, None
         seen, inside, unexplained = unexplained_conflicts(seer.views, points, margin, ratio, widen(points),
                                                           other.map_view, np.linalg.inv(T_seer_other))
         if seen < min_seen:
