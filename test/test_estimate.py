@@ -12,6 +12,7 @@ from regor_ros.core.estimate import (
     point_refine_all,
     pose_covariance,
     post_refine,
+    post_refine_all,
     weighted_kabsch,
 )
 from regor_ros.core.geometry import attached_pose, to_matrix, transform_points
@@ -57,6 +58,37 @@ def test_post_refine_recovers_pose_despite_outliers():
     refined = post_refine(start, src, tgt, threshold=0.1, iterations=20)
     assert translation_error(refined, T) < 0.005
     assert rotation_error_deg(refined, T) < 0.5
+
+
+def test_post_refine_is_reweighted_kabsch_on_the_inliers_each_pose_on_its_own():
+    """The compiled refinement of a batch of poses is, pose by pose, the definition: Kabsch on the
+    current inliers, Cauchy-weighted, until their count stops changing (the sums run in another
+    order: the last bits may differ)."""
+    rng = np.random.default_rng(6)
+    src = rng.uniform(-2, 2, size=(400, 3))
+    T = random_motion(7)
+    tgt = transform_points(T, src) + rng.normal(scale=0.01, size=(400, 3))
+    tgt[:150] = rng.uniform(-5, 5, size=(150, 3))
+    nudged = [T.copy() for _ in range(5)]
+    for seed, pose in enumerate(nudged):
+        pose[:3, 3] += np.random.default_rng(seed).uniform(-0.04, 0.04, 3)
+    starts = np.stack(nudged + [random_motion(99)])
+
+    def defined(pose, iterations):
+        previous = 0
+        for _ in range(iterations):
+            residual = np.linalg.norm(transform_points(pose, src) - tgt, axis=1)
+            inliers = residual < 0.1
+            if inliers.sum() in (previous, 0, 1, 2):
+                break
+            previous = int(inliers.sum())
+            pose = weighted_kabsch(src[inliers], tgt[inliers], cauchy_weights(residual[inliers], 0.1))
+        return pose
+
+    for iterations in (1, 20):
+        refined = post_refine_all(starts, src, tgt, 0.1, iterations)
+        np.testing.assert_allclose(refined, [defined(start, iterations) for start in starts], atol=1e-9)
+    assert translation_error(refined[0], T) < 0.005
 
 
 def test_point_refinement_converges_from_a_perturbed_pose(kitchen_pair):

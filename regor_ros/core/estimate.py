@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .geometry import to_matrix, transform_points
 from .metrics import rotation_error_deg, translation_error
 from .neighbour_grid import NeighbourGrid
@@ -69,17 +70,22 @@ def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold
                 iterations: int, clamp: Clamp = None) -> np.ndarray:
     """SC2-PCR's post-refinement on fixed correspondences: reweighted Kabsch on the inliers of
     the current pose until the inlier count stops changing."""
-    previous = 0
-    for _ in range(iterations):
-        residual = np.linalg.norm(transform_points(T, source) - target, axis=1)
-        inliers = residual < threshold
-        count = int(inliers.sum())
-        if count == previous or count < 3:
-            break
-        previous = count
-        T = weighted_kabsch(source[inliers], target[inliers],
-                            cauchy_weights(residual[inliers], threshold), clamp)
-    return T
+    return post_refine_all(T[None], source, target, threshold, iterations, clamp)[0]
+
+
+def post_refine_all(starts: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float,
+                    iterations: int, clamp: Clamp = None) -> np.ndarray:
+    """post_refine of each of ``starts`` (b, 4, 4), stepped together (the initial stage refines
+    every hypothesis it compares once): (b, 4, 4)."""
+    source, target = (np.ascontiguousarray(x, dtype=np.float64) for x in (source, target))
+
+    def moments(poses: np.ndarray) -> list:
+        distance, *rest = kernels.fixed_pairs_moments(np.ascontiguousarray(poses[:, :3, :3]),
+                                                      np.ascontiguousarray(poses[:, :3, 3]), source, target,
+                                                      float(threshold))
+        return [distance, None, *rest]
+
+    return _reweighted(starts, moments, iterations, clamp)[0]
 
 
 @dataclass
@@ -103,9 +109,24 @@ def point_refine_all(starts: np.ndarray, source: np.ndarray, target: NeighbourGr
                      iterations: int, clamp: Clamp = None) -> list[PointRefinement]:
     """point_refine of each of ``starts`` (b, 4, 4), the poses still moving stepped together (one
     compiled pass per step for all of them: a gate's rivals are up to nine short refinements)."""
+    poses, (distance, nearest, *_) = _reweighted(
+        starts, lambda poses: list(target.pair_moments(poses, source, threshold)), iterations, clamp)
+    refined = []
+    for T, d, j in zip(poses, distance, nearest, strict=True):
+        index = np.flatnonzero(d < threshold)
+        refined.append(PointRefinement(T, index, j[index], d[index]))
+    return refined
+
+
+def _reweighted(starts: np.ndarray, moments_of: Callable[[np.ndarray], list], iterations: int,
+                clamp: Clamp) -> tuple[np.ndarray, list]:
+    """Cauchy-reweighted Kabsch steps of each of ``starts`` until its pair count stops changing
+    or falls under three, the poses still moving stepped together. ``moments_of(poses)`` gives
+    the pairs' [distance, nearest, count, source centroid, target centroid, cross-covariance]
+    (PairMoments' fields) under each pose. (the poses, their last moments)."""
     poses = np.array(starts, dtype=np.float64).reshape(-1, 4, 4)
-    moments = list(target.pair_moments(poses, source, threshold))
-    distance, nearest, count = moments[:3]
+    moments = moments_of(poses)
+    count = moments[2]
     previous = np.full(len(poses), -1)
     moving = np.ones(len(poses), dtype=bool)
     for _ in range(iterations):
@@ -116,13 +137,10 @@ def point_refine_all(starts: np.ndarray, source: np.ndarray, target: NeighbourGr
         previous[step] = count[step]
         source_centroid, target_centroid, cross_covariance = (m[step] for m in moments[3:])
         poses[step] = kabsch_from_moments(source_centroid, target_centroid, cross_covariance, clamp)
-        for m, new in zip(moments, target.pair_moments(poses[step], source, threshold), strict=True):
-            m[step] = new
-    refined = []
-    for T, d, j in zip(poses, distance, nearest, strict=True):
-        index = np.flatnonzero(d < threshold)
-        refined.append(PointRefinement(T, index, j[index], d[index]))
-    return refined
+        for m, new in zip(moments, moments_of(poses[step]), strict=True):
+            if m is not None:
+                m[step] = new
+    return poses, moments
 
 
 # a point-to-plane step moves along a direction only as far as the surfaces fix it: damping of

@@ -17,7 +17,7 @@ from . import kernels
 from .cloud import PreparedCloud
 from .config import InitialConfig
 from .consistency import compatibility, leading_eigenvector, second_order_top_k, top_k_stable
-from .estimate import agreeing, poses_close, post_refine, weighted_kabsch
+from .estimate import agreeing, poses_close, post_refine, post_refine_all, weighted_kabsch
 from .geometry import transform_points
 from .gravity import GravityPrior
 from .matching import FeatureMatches
@@ -188,8 +188,9 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     # FS-TCD works on the candidates' x, y, z planes, relative to their centroid (float32; not
     # the target's: a map's would cost a pass over the map on every call)
     origin = target.points[matches.candidates[:, 0]].mean(axis=0)
-    candidate_points = np.ascontiguousarray(
-        np.moveaxis(target.points[matches.candidates] - origin, 2, 0), dtype=np.float32)
+    candidate_points = np.empty((3, *matches.candidates.shape), dtype=np.float32)
+    for axis in range(3):   # an axis at a time: a third of the temporaries of gathering the rows
+        candidate_points[axis] = target.points[:, axis][matches.candidates] - origin[axis]
     shift = np.eye(4)
     shift[:3, 3] = -origin
     candidate_sources = source.points[matches.candidate_rows]
@@ -202,8 +203,12 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     fitnesses: list = []
     refine_src, refine_tgt = src, tgt
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
-    for h in ranked:
-        T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp)
+    # one refinement step each, all at once (the quirk refines each on the previous one's matches)
+    refined = None if cfg.reproduce_fs_tcd_quirk else post_refine_all(hypotheses[ranked], src, tgt,
+                                                                      cfg.refine_threshold, 1, clamp)
+    for at, h in enumerate(ranked):
+        T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp) \
+            if refined is None else refined[at]
         if cfg.dedupe_hypotheses and _near_any(T, kept, DEDUPE_ANGLE_DEG, tolerance):
             continue
         kept.append(T)
