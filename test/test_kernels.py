@@ -82,6 +82,28 @@ def _numpy_bins(offsets, step, cols):
     return ranges, np.floor(elevation / step).astype(np.int64) * cols + np.floor(azimuth / step).astype(np.int64) % cols
 
 
+def test_plane_step_system_is_the_numpy_expression():
+    """One point-to-plane step's normal equations, as the refinement wrote them in numpy: the
+    pairs within the threshold, arms from their centroid, Cauchy-weighted Jacobian rows."""
+    rng = np.random.default_rng(5)
+    moved, points = rng.uniform(-1, 1, (500, 3)), rng.uniform(-1, 1, (300, 3))
+    normals = rng.normal(size=(300, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    nearest = rng.integers(0, 300, 500)
+    distance = rng.uniform(0, 0.2, 500)
+    pairs, centre, system, gradient = kernels.plane_step_system(moved, distance, nearest, points, normals, 0.1)
+    near = distance < 0.1
+    n = normals[nearest[near]]
+    arm = moved[near] - moved[near].mean(axis=0)
+    residual = np.einsum("ij,ij->i", moved[near] - points[nearest[near]], n)
+    jacobian = np.hstack([np.cross(arm, n), n])
+    weighted = jacobian / (1 + (residual / 0.1) ** 2)[:, None]
+    assert pairs == near.sum()
+    np.testing.assert_allclose(centre, moved[near].mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(system, weighted.T @ jacobian, atol=1e-10)
+    np.testing.assert_allclose(gradient, weighted.T @ residual, atol=1e-10)
+
+
 def test_spherical_bins_and_free_space_classes_are_the_numpy_expressions():
     rng = np.random.default_rng(6)
     points = rng.normal(0, 20, size=(20_000, 3))

@@ -176,25 +176,21 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, targe
     threshold annealed (``plane_thresholds``). The point-level refinement pairs keypoints up to
     tau_e apart (1.2 m outdoors), so a sparse scan's pose stays about half a voxel off; planes
     slide into place where points would have to coincide."""
+    normals = np.ascontiguousarray(target_normals, dtype=np.float64)
     for threshold in thresholds:
         for _ in range(PLANE_ITERATIONS):
             moved = transform_points(T, source)
             distances, nearest = target.nearest_within(moved, threshold)
-            near = distances < threshold
-            if near.sum() < 6:
+            # rotating about the paired points' centre
+            pairs, centre, H, gradient = kernels.plane_step_system(moved, distances, nearest, target.points,
+                                                                    normals, float(threshold))
+            if pairs < 6:
                 break
-            normals = target_normals[nearest[near]]
-            arm = moved[near] - moved[near].mean(axis=0)  # rotate about the moved cloud's centre
-            residual = np.einsum("ij,ij->i", moved[near] - target.points[nearest[near]], normals)
-            jacobian = np.hstack([np.cross(arm, normals), normals])
-            weighted = jacobian * cauchy_weights(residual, threshold)[:, None]
-            H = weighted.T @ jacobian
             H += PLANE_DAMPING * np.linalg.eigvalsh(H)[-1] * np.eye(6)
-            step = -np.linalg.solve(H, weighted.T @ residual)
+            step = -np.linalg.solve(H, gradient)
             rotation = _rotation(step[:3])
             if clamp is not None:
                 rotation = clamp(rotation @ T[:3, :3]) @ T[:3, :3].T
-            centre = moved[near].mean(axis=0)
             T = to_matrix(rotation, centre + step[3:] - rotation @ centre) @ T
             if np.abs(step).max() < PLANE_STEP_SETTLED:
                 break

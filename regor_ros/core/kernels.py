@@ -630,16 +630,23 @@ def _keep_best(keys, k):
 
 
 @njit(inline="always")
-def _offer_to_list(keys, held, floor, i, k, dots, start):
+def _offer_to_list(keys, held, floor, i, k, dots, start, passed):
     """Offer a run of similarities (positions start, start + 1, ...) to top-k list ``i``: its
     rank ``keys`` (k + _spare(k) places, ``held`` of them filled) take every similarity above its
     ``floor``; a full list keeps its k best and raises the floor to the worst of them (FAISS's
     reservoir). Started at a sampled floor (flat_search), a list takes about 3k entries where a
-    heap re-orders itself on nine times k.
+    heap re-orders itself on nine times k. The run's few above the floor are first picked out
+    without a branch (into ``passed``, room for the run): a branch per similarity, taken at
+    random, cost more than the products.
     Positions ascend within a run and across the runs offered, so a similarity equal to the
     floor is never better than the k kept."""
     bar, filled = floor[i], held[i]
+    above = 0
     for j in range(len(dots)):
+        passed[above] = j
+        above += dots[j] > bar
+    for a in range(above):
+        j = passed[a]
         if dots[j] > bar:
             if filled == len(keys):
                 bar, filled = _keep_best(keys, k), k
@@ -769,6 +776,7 @@ def flat_search(queries, table, slot, k, columns, chunks):
     column_query = np.full((column_runs, n_rows), -1, np.int64)
     sampled = np.ascontiguousarray(table[::FLOOR_STRIDE])
     for c in prange(chunks):
+        passed = np.empty(ROW_TILE, np.int64)
         for t in range(first_tile[c], first_tile[c + 1]):
             q0 = t * QUERY_TILE
             q1 = min(q0 + QUERY_TILE, n_queries)
@@ -790,7 +798,7 @@ def flat_search(queries, table, slot, k, columns, chunks):
                             at += 1
                         nearest_similarity[q], nearest[q] = top, r0 + at
                     if slot[q] >= 0:
-                        _offer_to_list(lists[slot[q]], held, floor, slot[q], k, dot, r0)
+                        _offer_to_list(lists[slot[q]], held, floor, slot[q], k, dot, r0, passed)
                     if columns:  # queries ascend within a run: an equal one later is never better
                         best_of_row, query_of_row = column_best[c, r0:r1], column_query[c, r0:r1]
                         for j in range(r1 - r0):
@@ -804,7 +812,8 @@ def flat_search(queries, table, slot, k, columns, chunks):
             q1 = min(q0 + QUERY_TILE, n_queries)
             for r0 in range(0, n_rows, ROW_TILE):
                 r1 = min(r0 + ROW_TILE, n_rows)
-                _offer_to_list(lists[s], held, floor, s, k, np.dot(queries[q0:q1], table[r0:r1].T)[q - q0], r0)
+                _offer_to_list(lists[s], held, floor, s, k, np.dot(queries[q0:q1], table[r0:r1].T)[q - q0], r0,
+                               np.empty(r1 - r0, np.int64))
     candidates = np.empty((n_slots, k), np.int64)
     candidate_similarity = np.empty((n_slots, k), np.float32)
     for s in prange(n_slots):
@@ -1051,6 +1060,45 @@ def fixed_pairs_moments(rotations, translations, source, target, threshold):
         count[s] = _pair_moments(source, target, distance[s], index, threshold, source_centroid[s],
                                  target_centroid[s], cross[s])
     return distance, count, source_centroid, target_centroid, cross
+
+
+@njit(**JIT)
+def plane_step_system(moved, distance, nearest, points, normals, threshold):
+    """The normal equations of one point-to-plane Gauss-Newton step (estimate.plane_refine) in
+    one pass: for the moved points paired within ``threshold`` (``distance``, ``nearest`` as
+    grid_nearest gives them), each one's residual along its nearest point's normal and its
+    Jacobian row [arm x normal, normal], the arm from the paired points' centroid, Cauchy-weighted:
+    (pairs, centroid (3,), J^T W J (6, 6), J^T W r (6,)). In point order on one thread (a scan's
+    few thousand pairs are no work for a second)."""
+    count = 0
+    centre = np.zeros(3)
+    for i in range(len(moved)):
+        if distance[i] < threshold:
+            count += 1
+            for a in range(3):
+                centre[a] += moved[i, a]
+    system = np.zeros((6, 6))
+    gradient = np.zeros(6)
+    if count == 0:
+        return count, centre, system, gradient
+    centre /= count
+    row = np.empty(6)
+    for i in range(len(moved)):
+        if distance[i] < threshold:
+            q = nearest[i]
+            nx, ny, nz = normals[q, 0], normals[q, 1], normals[q, 2]
+            ax, ay, az = moved[i, 0] - centre[0], moved[i, 1] - centre[1], moved[i, 2] - centre[2]
+            residual = ((moved[i, 0] - points[q, 0]) * nx + (moved[i, 1] - points[q, 1]) * ny
+                        + (moved[i, 2] - points[q, 2]) * nz)
+            row[0], row[1], row[2] = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
+            row[3], row[4], row[5] = nx, ny, nz
+            r = residual / threshold
+            weight = 1.0 / (1.0 + r * r)
+            for a in range(6):
+                gradient[a] += weight * row[a] * residual
+                for b in range(6):
+                    system[a, b] += weight * row[a] * row[b]
+    return count, centre, system, gradient
 
 
 @njit(inline="always")
@@ -1366,6 +1414,7 @@ def warm_up() -> None:
                             np.float32(0.01), np.float32(0.02))
         most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
         fixed_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points, 0.1)
+        plane_step_system(points, np.zeros(8), np.zeros(8, np.int64), points, points, 0.1)
         region_agreement(points.reshape(2, 4, 3), points.reshape(2, 4, 3), np.ones((2, 4), np.bool_), 0.05)
         spherical_bins(points, 0.01, 8, 1e-3)
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
