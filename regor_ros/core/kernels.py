@@ -308,14 +308,19 @@ def seed_consensus(first, hard, soft, k2, iterations):
 
 
 @njit(parallel=True, **JIT)
-def generalized_mutual_mask(similarity, k):
+def generalized_mutual_pairs(similarity, k):
     """Generalized mutual matching over batched (regions, rows, cols) similarities: (r, c) is kept
     when c is r's best and r among c's k best, or r is c's best and c among r's k best. Ties go
-    to the lower index (a partition leaves them to its implementation)."""
+    to the lower index (a partition leaves them to its implementation). Each region's pairs in
+    row-major order: (rows (regions, rows + cols), cols (the same), count (regions,)), -1 past
+    a region's count (a region holds at most rows + cols pairs)."""
     regions, n_rows, n_cols = similarity.shape
     k_row, k_col = min(k, n_cols), min(k, n_rows)
-    mask = np.zeros(similarity.shape, dtype=np.bool_)
+    pair_rows = np.full((regions, n_rows + n_cols), -1, np.int64)
+    pair_cols = np.full((regions, n_rows + n_cols), -1, np.int64)
+    count = np.zeros(regions, np.int64)
     for s in prange(regions):
+        mask = np.zeros((n_rows, n_cols), dtype=np.bool_)
         row_top = np.empty((n_rows, k_row), dtype=np.int64)
         col_top = np.empty((n_cols, k_col), dtype=np.int64)
         for r in range(n_rows):
@@ -327,13 +332,20 @@ def generalized_mutual_mask(similarity, k):
             c = row_top[r, 0]
             for m in range(k_col):
                 if col_top[c, m] == r:
-                    mask[s, r, c] = True
+                    mask[r, c] = True
         for c in range(n_cols):
             r = col_top[c, 0]
             for m in range(k_row):
                 if row_top[r, m] == c:
-                    mask[s, r, c] = True
-    return mask
+                    mask[r, c] = True
+        kept = 0
+        for r in range(n_rows):
+            for c in range(n_cols):
+                if mask[r, c]:
+                    pair_rows[s, kept], pair_cols[s, kept] = r, c
+                    kept += 1
+        count[s] = kept
+    return pair_rows, pair_cols, count
 
 
 @njit(parallel=True, **JIT)
@@ -1408,7 +1420,7 @@ def warm_up() -> None:
         second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
         seed_consensus(np.zeros((2, 3), np.int64), hard, soft, 2, 2)
         triangle_scores(points, points, 0.1)
-        generalized_mutual_mask(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
+        generalized_mutual_pairs(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
         verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
                             np.float32(0.01), np.float32(0.02))

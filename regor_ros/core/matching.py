@@ -55,9 +55,12 @@ def match_features(source: PreparedCloud, target: PreparedCloud, candidates: int
     return FeatureMatches(nearest, best_sim, flags, candidate_rows, cand, feature_distance(cand_sim))
 
 
-def generalized_mutual_matches(similarity: np.ndarray, k: int = 3) -> np.ndarray:
+def generalized_mutual_matches(similarity: np.ndarray, k: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Generalized mutual matching (GMM): keep (j, l) if l is j's nearest and j is among l's k
-    nearest, or j is l's nearest and l among j's k nearest. Mask over (regions, rows, cols); it
-    contains the mutual matches (k = 1) and holds at most rows + cols pairs. Ties go to the lower
-    index."""
-    return kernels.generalized_mutual_mask(np.ascontiguousarray(similarity), int(k))
+    nearest, or j is l's nearest and l among j's k nearest, in each region of (regions, rows,
+    cols) similarities. It contains the mutual matches (k = 1) and holds at most rows + cols
+    pairs. Ties go to the lower index. (rows, cols: (regions, width), -1 past each region's
+    count; count (regions,)), each region's pairs in row-major order, width the most any holds."""
+    rows, cols, count = kernels.generalized_mutual_pairs(np.ascontiguousarray(similarity), int(k))
+    width = max(int(count.max(initial=0)), 1)
+    return rows[:, :width], cols[:, :width], count

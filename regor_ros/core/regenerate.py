@@ -37,15 +37,11 @@ def local_matches(seed_src: np.ndarray, seed_tgt: np.ndarray, source: PreparedCl
     _, near_q = target.tree.query(seed_tgt, k=k)
     near_p, near_q = near_p.reshape(s, k), near_q.reshape(s, k)
     similarity = source.features[near_p] @ np.swapaxes(target.features[near_q], 1, 2)
-    region, row, col = np.nonzero(generalized_mutual_matches(similarity, min(gmm_k, k)))
-    count = np.bincount(region, minlength=s)
-    width = max(int(count.max()), 1)
-    slot = np.arange(len(region)) - np.concatenate([[0], np.cumsum(count)[:-1]])[region]
-    src_idx = np.full((s, width), -1, dtype=np.int64)
-    tgt_idx = np.full((s, width), -1, dtype=np.int64)
-    src_idx[region, slot] = near_p[region, row]
-    tgt_idx[region, slot] = near_q[region, col]
-    return LocalMatches(src_idx, tgt_idx, src_idx >= 0, count)
+    rows, cols, count = generalized_mutual_matches(similarity, min(gmm_k, k))
+    valid = rows >= 0
+    src_idx = np.where(valid, np.take_along_axis(near_p, np.maximum(rows, 0), axis=1), -1)
+    tgt_idx = np.where(valid, np.take_along_axis(near_q, np.maximum(cols, 0), axis=1), -1)
+    return LocalMatches(src_idx, tgt_idx, valid, count)
 
 
 def three_point_filter(seed_src: np.ndarray, seed_tgt: np.ndarray, m: LocalMatches,
