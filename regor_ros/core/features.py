@@ -83,19 +83,15 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     return features
 
 
-def normals_toward_nearest(points: np.ndarray, sensors: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
-    """Unit normals as Open3D estimates them (kernels.surface_normals, on a grid of cells the
-    radius's size), each turned to face the nearest of the sensor positions: a surface is seen
+def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray) -> np.ndarray:
+    """The normals, each turned to face the nearest of the sensor positions: a surface is seen
     from its open side, so this is the same side in any cloud that saw it. Open3D leaves a
     normal's sign to its eigen solver, which decides it in the cloud's own axes: the same surface
     in two clouds whose frames are turned apart gets opposite signs about as often as not, and
     FPFH's angles change with the signs, so its histograms do not match (PCL turns normals toward
     the viewpoint by default)."""
     toward = sensors[cKDTree(sensors).query(points)[1]] - points
-    grid = NeighbourGrid(points)
-    cells = grid.cells(radius)
-    return kernels.surface_normals(grid.points, toward, float(radius), int(max_nn), cells.keys, cells.table,
-                                   cells.starts, cells.order, cells.ordered)
+    return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
@@ -143,14 +139,13 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
         map_view = MapView.build(surface, config.voxel_size, config.range_image_resolution, positions)
         sensors = positions
     del parts, points   # a map's raw points: not needed past here, and a copy of them is 45 MB a million
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
+        radius=config.normal_radius, max_nn=config.normal_max_nn))
     keypoints = np.asarray(down.points, dtype=np.float64)
+    normals = np.asarray(down.normals, dtype=np.float64)
     toward = config.normals_toward_sensors and may_face_sensors and sensors is not None and len(sensors) > 0
     if toward and sensors is not None:
-        normals = normals_toward_nearest(keypoints, sensors, config.normal_radius, config.normal_max_nn)
-    else:   # the signs Open3D's solver gives (no sensor decides them)
-        down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
-            radius=config.normal_radius, max_nn=config.normal_max_nn))
-        normals = np.asarray(down.normals, dtype=np.float64)
+        normals = toward_nearest(normals, keypoints, sensors)
     features = fpfh(keypoints, normals, config.fpfh_radius, config.fpfh_max_nn)
     features /= np.linalg.norm(features, axis=1, keepdims=True) + 1e-6
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
