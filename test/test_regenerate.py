@@ -74,3 +74,16 @@ def test_unique_rows_gives_numpys_unique_rows_and_first_occurrences():
         expected_rows, expected_first = np.unique(values, axis=0, return_index=True)
         np.testing.assert_array_equal(rows, expected_rows)
         np.testing.assert_array_equal(first, expected_first)
+
+
+def test_column_bounds_are_the_columns_minimum_and_maximum():
+    """Bit for bit what min(axis=0) and max(axis=0) give, integers and floats (NaN included)."""
+    from regor_ros.core.geometry import column_bounds
+    rng = np.random.default_rng(4)
+    floats = rng.normal(size=(500, 3))
+    floats[7, 1] = np.nan
+    for values in (rng.integers(-2 ** 40, 2 ** 40, (1000, 3)), floats, rng.random((1, 4)).astype(np.float32)):
+        low, high = column_bounds(values)
+        np.testing.assert_array_equal(low, values.min(axis=0))
+        np.testing.assert_array_equal(high, values.max(axis=0))
+        assert low.dtype == values.dtype

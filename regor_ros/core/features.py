@@ -90,7 +90,8 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
     in two clouds whose frames are turned apart gets opposite signs about as often as not, and
     FPFH's angles change with the signs, so its histograms do not match (PCL turns normals toward
     the viewpoint by default)."""
-    toward = sensors[cKDTree(sensors).query(points)[1]] - points
+    nearest = sensors[0] if len(sensors) == 1 else sensors[cKDTree(sensors).query(points)[1]]
+    toward = nearest - points
     return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
 
 

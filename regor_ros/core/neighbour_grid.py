@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels
+from .geometry import column_bounds
 
 
 class PairMoments(NamedTuple):
@@ -95,8 +96,8 @@ class NeighbourGrid:
         empty cell costs one read instead of a hashed probe (17 probes a query, 1.1 of them
         occupied, on a 3DMatch pair's refinements), on a map's grids too (a 1.1 km map at the
         0.6 m threshold: 193 M cells, 24 MB)."""
-        origin = self.points.min(axis=0)
-        extent = float((self.points.max(axis=0) - origin).max())
+        origin, top = column_bounds(self.points)
+        extent = float((top - origin).max())
         cell = max(threshold, extent / (2 ** kernels.GRID_AXIS_BITS - 2), 1e-9)
         coordinates = np.floor((self.points - origin) / cell).astype(np.int64)
         packed = kernels.grid_keys(coordinates)
@@ -104,7 +105,7 @@ class NeighbourGrid:
         keys, starts = np.unique(packed[order], return_index=True)
         starts = np.append(starts, len(order)).astype(np.int64)
         table = kernels.grid_table(keys)
-        span = coordinates.max(axis=0) + 1
+        span = column_bounds(coordinates)[1] + 1
         spanned = float(np.prod(span.astype(float)))   # in floats: a UTM-wide span overflows int64
         occupied = np.zeros(0, dtype=np.uint64)
         if spanned <= DENSE_CELLS:

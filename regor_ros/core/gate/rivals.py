@@ -28,6 +28,7 @@ means the evidence cannot tell the two apart (gate/judge.py's ambiguity).
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import lru_cache
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -36,7 +37,7 @@ from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import agreeing, point_refine, point_refine_all
-from ..geometry import evenly_spaced, to_matrix, transform_points
+from ..geometry import column_bounds, evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior, clamp_of
 from ..initial import same_place
 from ..metrics import rotation_error_deg
@@ -75,6 +76,14 @@ def dominant_direction(normals: np.ndarray) -> np.ndarray:
     return axis
 
 
+@lru_cache(maxsize=4)
+def _shuffles(n: int) -> np.ndarray:
+    """CHANCE_PAIRINGS random orders of n matches, the same for every turn of a pose (seeded)."""
+    shuffles = np.random.default_rng(0).permuted(np.tile(np.arange(n), (CHANCE_PAIRINGS, 1)), axis=1)
+    shuffles.flags.writeable = False
+    return shuffles
+
+
 def voted_translation(rotation: np.ndarray, source: np.ndarray, target: np.ndarray, cell: float) -> np.ndarray:
     """The translation the matches (source[i], target[i]) agree on under ``rotation`` beyond
     chance: each match's translation binned at ``cell`` and pooled with its 26 neighbours; the bin
@@ -83,11 +92,11 @@ def voted_translation(rotation: np.ndarray, source: np.ndarray, target: np.ndarr
     a small overlap's matches); the median of its votes."""
     turned = source @ rotation.T
     votes = target - turned
-    shuffles = np.random.default_rng(0).permuted(np.tile(np.arange(len(target)), (CHANCE_PAIRINGS, 1)), axis=1)
-    background = (target[shuffles] - turned).reshape(-1, 3)
+    background = (target[_shuffles(len(target))] - turned).reshape(-1, 3)
     keys = np.floor(np.vstack([votes, background]) / cell).astype(np.int64)
-    keys -= keys.min(axis=0) - 1          # a free bin on every side, so neighbours do not wrap
-    span = keys.max(axis=0) + 2
+    low, high = column_bounds(keys)
+    keys -= low - 1          # a free bin on every side, so neighbours do not wrap
+    span = high - low + 3
 
     def linear(k):
         return (k[..., 0] * span[1] + k[..., 1]) * span[2] + k[..., 2]
