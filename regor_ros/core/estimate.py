@@ -61,11 +61,6 @@ def poses_close(A: np.ndarray, B: np.ndarray, angle_deg: float, translation: flo
     return rotation_error_deg(A, B) < angle_deg and translation_error(A, B) < translation
 
 
-def cauchy_weights(residual: np.ndarray, threshold: float) -> np.ndarray:
-    """Robust weights: a residual at ``threshold`` counts half, far ones fade without a cut-off."""
-    return 1.0 / (1.0 + (residual / threshold) ** 2)
-
-
 def post_refine(T: np.ndarray, source: np.ndarray, target: np.ndarray, threshold: float,
                 iterations: int, clamp: Clamp = None) -> np.ndarray:
     """SC2-PCR's post-refinement on fixed correspondences: reweighted Kabsch on the inliers of

@@ -1114,7 +1114,8 @@ def plane_step_system(moved, distance, nearest, points, normals, threshold):
 
 @njit(inline="always")
 def _pair_moments(queries, points, distance, index, threshold, source_centroid, target_centroid, cross):
-    """grid_pairs_moments' sums for one pose, into the last three arguments; the pairs' count."""
+    """grid_pairs_moments' sums for one pose, into the last three arguments; the pairs' count.
+    Cauchy weights: a residual at the threshold counts half, far ones fade without a cut-off."""
     m = len(queries)
     weight = np.zeros(m)
     count = 0
