@@ -174,6 +174,15 @@ def test_an_argument_the_mode_would_not_read_is_refused(mode, tmp_path, capsys):
     assert "each override needs its own --set" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("mode", [[], ["--threedmatch"]])
+def test_a_seed_the_pairs_would_not_use_is_refused(mode, tmp_path, capsys):
+    """Pairs and the lists seed each registration with its motion's seed: a --set seed would be
+    overwritten without a word, and a run meant as another draw would repeat the last one."""
+    with pytest.raises(SystemExit):
+        main([*mode, str(tmp_path), "--set", "seed=3", "--out", str(tmp_path / "out")])
+    assert "--set seed has no effect" in capsys.readouterr().err
+
+
 def test_without_viewpoints_no_free_space_is_measured_and_the_report_says_so(tmp_path, capsys):
     folder = pair_folder(tmp_path, TWO[:1])
     out = tmp_path / "out"

@@ -38,6 +38,11 @@ def main(argv=None) -> int:
         # a folder it would not read, or an override that lost its --set: refused, not silently dropped
         parser.error(f"{instead} reads no folders of pairs, but {', '.join(map(str, args.data))} was given "
                      "(each override needs its own --set NAME=VALUE)")
+    if any(item.split("=", 1)[0].strip() == "seed" for item in args.set) and instead in (None, "--threedmatch") \
+            and not (args.profile or args.verify):
+        # each pair's registration is seeded with its motion's seed (0 without --rotate): refused, not ignored
+        parser.error("--set seed has no effect on pairs and --threedmatch, whose registrations take their "
+                     "motion's seed (--rotate SEED ...; 0 without); it applies with --maps")
     if args.no_viewpoints and (args.profile or instead not in (None, "--threedmatch")):
         parser.error("--no-viewpoints is for pairs and --threedmatch (a map's view comes from its trajectory)")
     # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
