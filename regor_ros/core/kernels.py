@@ -647,8 +647,8 @@ def _offer_to_list(keys, held, floor, i, k, dots, start, passed):
     ``floor``; a full list keeps its k best and raises the floor to the worst of them (FAISS's
     reservoir). Started at a sampled floor (flat_search), a list takes about 3k entries where a
     heap re-orders itself on nine times k. The run's few above the floor are first picked out
-    without a branch (into ``passed``, room for the run): a branch per similarity, taken at
-    random, cost more than the products.
+    without a branch (into ``passed``, room for the run), which a branch per similarity, taken
+    at random, mispredicted.
     Positions ascend within a run and across the runs offered, so a similarity equal to the
     floor is never better than the k kept."""
     bar, filled = floor[i], held[i]
@@ -1045,6 +1045,14 @@ def grid_pairs_moments(rotations, translations, queries, points, origin, cell, t
     return distance, index, count, source_centroid, target_centroid, cross
 
 
+@njit(inline="always")
+def _cauchy(residual, threshold):
+    """The refinements' robust weight: a residual at the threshold counts half, far ones fade
+    without a cut-off."""
+    r = residual / threshold
+    return 1.0 / (1.0 + r * r)
+
+
 @njit(parallel=True, **JIT)
 def fixed_pairs_moments(rotations, translations, source, target, threshold):
     """grid_pairs_moments for fixed correspondences (``source[i]``, ``target[i]``): each pair's
@@ -1103,8 +1111,7 @@ def plane_step_system(moved, distance, nearest, points, normals, threshold):
                         + (moved[i, 2] - points[q, 2]) * nz)
             row[0], row[1], row[2] = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
             row[3], row[4], row[5] = nx, ny, nz
-            r = residual / threshold
-            weight = 1.0 / (1.0 + r * r)
+            weight = _cauchy(residual, threshold)
             for a in range(6):
                 gradient[a] += weight * row[a] * residual
                 for b in range(6):
@@ -1114,16 +1121,14 @@ def plane_step_system(moved, distance, nearest, points, normals, threshold):
 
 @njit(inline="always")
 def _pair_moments(queries, points, distance, index, threshold, source_centroid, target_centroid, cross):
-    """grid_pairs_moments' sums for one pose, into the last three arguments; the pairs' count.
-    Cauchy weights: a residual at the threshold counts half, far ones fade without a cut-off."""
+    """grid_pairs_moments' sums for one pose, into the last three arguments; the pairs' count."""
     m = len(queries)
     weight = np.zeros(m)
     count = 0
     total = 0.0
     for q in range(m):
         if distance[q] < threshold:
-            r = distance[q] / threshold
-            weight[q] = 1.0 / (1.0 + r * r)
+            weight[q] = _cauchy(distance[q], threshold)
             count += 1
             total += weight[q]
             for i in range(3):
