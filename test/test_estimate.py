@@ -4,6 +4,7 @@ from conftest import random_motion
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core.estimate import (
+    PointRefinement,
     inliers_at,
     plane_refine,
     plane_thresholds,
@@ -12,6 +13,7 @@ from regor_ros.core.estimate import (
     pose_covariance,
     post_refine,
     post_refine_all,
+    settled,
     weighted_kabsch,
 )
 from regor_ros.core.geometry import attached_pose, to_matrix, transform_points
@@ -110,6 +112,32 @@ def test_point_refinement_converges_from_a_perturbed_pose(kitchen_pair):
     assert rotation_error_deg(result.transform, T_gt) < 3.0
     assert len(result.source_index) > 0.5 * len(s)
     assert (result.distances < 0.1).all()
+
+
+def _refinement(T, points, residual=0.0):
+    return PointRefinement(T, np.arange(len(points)), np.arange(len(points)), np.full(len(points), residual))
+
+
+def test_a_pose_is_refined_on_until_a_round_moves_it_less_than_it_is_known():
+    points = np.random.default_rng(3).uniform(-10, 10, (200, 3))
+    goal = to_matrix(np.eye(3), np.array([2.0, 0.0, 0.0]))
+    rounds = []
+
+    def halfway(T):   # a refinement that gets half way to the goal each round
+        rounds.append(T)
+        return _refinement(to_matrix(np.eye(3), (T[:3, 3] + goal[:3, 3]) / 2), points)
+
+    start = _refinement(np.eye(4), points)
+    out = settled(start, halfway, points, voxel_size=0.3, rounds=3)
+    # 1 m, 0.5 m, 0.25 m: each round moved it more than a voxel's sigma (0.087 m), so it takes the last
+    assert len(rounds) == 3 and np.allclose(out.transform[:3, 3], [1.75, 0.0, 0.0])
+    rounds.clear()
+    near = _refinement(to_matrix(np.eye(3), np.array([1.95, 0.0, 0.0])), points)
+    assert settled(near, halfway, points, voxel_size=0.3, rounds=3) is near   # it has settled: returned as it was
+    assert len(rounds) == 1
+    worse = settled(start, lambda T: _refinement(goal, points, residual=1.0), points, voxel_size=0.3,
+                    rounds=3)
+    assert worse is start   # a round that fits the data worse at the keypoints' resolution is not taken
 
 
 def test_plane_thresholds_halve_tau_e_down_to_the_voxel_size():

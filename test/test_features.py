@@ -18,10 +18,25 @@ def test_largest_plane_finds_the_ground_and_nothing_else():
 
 def test_ground_removal_is_repeatable():
     src, _, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
-    cfg = RegorConfig.preset("outdoor")
-    first, second = prepare_cloud(src, cfg), prepare_cloud(src, cfg)
-    assert len(first) < len(prepare_cloud(src, cfg.replace({"remove_ground": False})))
+    cfg, scan = RegorConfig.preset("outdoor"), {"viewpoint": np.zeros(3)}
+    first, second = prepare_cloud(src, cfg, **scan), prepare_cloud(src, cfg, **scan)
+    assert first.ground_removed and len(first) < len(prepare_cloud(src, cfg.replace({"remove_ground": False}), **scan))
     np.testing.assert_array_equal(first.points, second.points)
+
+
+def test_the_ground_stays_in_a_cloud_without_viewpoint_and_in_a_scan_registered_against_one():
+    src, tgt, _, _ = moved_pair("lidar_koide_251371071_to_251370668", 1)
+    cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": False})   # one convention
+    scan, aggregated = prepare_cloud(src, cfg, viewpoint=np.zeros(3)), prepare_cloud(tgt, cfg)
+    assert scan.ground_removed and not aggregated.ground_removed   # a map has no rings to match
+    assert len(aggregated) > len(prepare_cloud(tgt, cfg, viewpoint=np.zeros(3)))   # its ground's keypoints
+    with pytest.raises(RegistrationError, match="ground removed"):
+        register(scan, aggregated, cfg)                # prepared apart under two conventions: refused
+    result = register(src, aggregated, cfg)            # a raw scan follows the map
+    assert result.num_source_keypoints == len(prepare_cloud(src, cfg.replace({"remove_ground": False}),
+                                                            viewpoint=np.zeros(3)))
+    paired = for_clouds_seen_from(cfg, np.zeros(3), None)   # one pair prepared cloud by cloud
+    assert not prepare_cloud(src, paired, viewpoint=np.zeros(3)).ground_removed
 
 
 def test_prepared_cloud_has_unit_features_and_normals(kitchen_pair):
@@ -76,22 +91,21 @@ def test_normals_are_turned_toward_the_nearest_sensor():
 
 
 def test_a_revisit_seen_from_the_other_way_is_found_once_normals_face_the_sensors():
-    """Revisit query 200 looks 139 deg away from the map's nearest pose. With the solver's signs
-    (decided in each cloud's own axes) the fused scans' FPFH find almost none of their true
-    matches in the map and the search settles elsewhere; with every normal facing the sensor that
-    saw it, the place is found and published. (With the solver's signs the outdoor preset's
-    verification picks also reach it, from the search's next places: off here, to compare the
-    features alone.)"""
+    """Revisit scan 191 looks the other way from the map's nearest pose. With the solver's signs
+    (decided in each cloud's own axes) its FPFH find almost none of their true matches in the map
+    and the search settles elsewhere; with every normal facing the sensor that saw it, the place
+    is found and published. (With the solver's signs the outdoor preset's verification picks may
+    also reach it, from the search's next places: off here, to compare the features alone.)"""
     require_shared_data("the revisit sequence")
     cloud, trajectory, queries = load_sequence(DATA / "revisit" / "avia_hku2_loop")
-    query = next(q for q in queries if q.id == "scan_000200")
+    query = next(q for q in queries if q.id == "scan_000191")
     outcome = {}
     for toward in (True, False):
         cfg = RegorConfig.preset("outdoor").replace({"features.normals_toward_sensors": toward,
                                                      "estimation.visible_candidates": 0})
         prepared = prepare_cloud(cloud, cfg, "map", trajectory=trajectory)
         assert prepared.normals_toward_sensors == toward
-        result = register(query.history, prepared, cfg)
+        result = register(query.scan, prepared, cfg)
         outcome[toward] = (is_success(result.transform, query.truth, "outdoor"), result.accepted)
     assert outcome == {True: (True, True), False: (False, False)}
 

@@ -43,6 +43,7 @@ class PreparedCloud:
     map_view: MapView | None = None  # a cloud with no viewpoint (a map): seen from any position
     normals_toward_sensors: bool = False  # its normals face its sensors (else the solver's signs)
     shake_bins: int = 0   # its views are read this many bins wider: its scans' own disagreement (shake.py)
+    ground_removed: bool = False  # its largest plane left its keypoints (features.ground_removed_between)
 
     def __len__(self) -> int:
         return len(self.points)

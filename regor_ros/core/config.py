@@ -36,9 +36,11 @@ class FeatureConfig:
     normal_max_nn: int = param(30, "max neighbours for normal estimation", 3, 1000)
     fpfh_radius: float = param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
     fpfh_max_nn: int = param(100, "max neighbours for the FPFH descriptor", 5, 1000)
-    remove_ground: bool = param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints; "
-                                 "its rings make unrelated scans look aligned at the same sensor position "
-                                 "(deviation; outdoor preset only)")
+    remove_ground: bool = param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints when "
+                                 "both clouds are scans seen from known sensors: its rings make unrelated scans "
+                                 "look aligned at the same sensor position; a cloud without viewpoint (a map) "
+                                 "keeps it, and so does a scan registered against one (deviation; outdoor "
+                                 "preset only)")
     min_points: int = param(30, "fewest keypoints per cloud after downsampling that are registered", 10, 100000)
     exact_search_limit: int = param(20000, "feature search is exact against clouds of up to this many keypoints "
                                      "(a scan); a larger cloud (a map) gets an "
@@ -135,6 +137,10 @@ class EstimationConfig:
                                     "the voxel size, so the gate judges the pose at the keypoints' resolution; "
                                     "kept when it puts at least as many keypoints within a voxel of the target "
                                     "(sparse scans' point-level poses stay decimetres off; deviation)")
+    settle_rounds: int = param(0, "further rounds of refinement (point level, then planes) a pose takes until a "
+                               "round moves it by less than it is known at the keypoints' resolution; where tau_e "
+                               "spans several keypoint spacings a scan inside a map keeps its inlier count while "
+                               "its pose still moves (deviation; outdoor preset only)", 0, 100)
     visible_candidates: int = param(8, "when the pose puts one cloud into space the other sensor saw through "
                                        "(acceptance.max_free_space_violation, _both_sides), refine up to this "
                                        "many other places the search found and take the one that does not, with "
@@ -298,7 +304,7 @@ class RegorConfig:
                 initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
                                       k1=40, k2=30, fs_tcd_threshold=0.1,
                                       refine_threshold=1.2, subset="best"),
-                estimation=EstimationConfig(inlier_threshold=1.2, visible_candidates=8),
+                estimation=EstimationConfig(inlier_threshold=1.2, settle_rounds=3, visible_candidates=8),
                 acceptance=AcceptanceConfig(min_feature_inliers=5, min_feature_inliers_partial=60,
                                             max_free_space_violation=0.03,
                                             free_space_margin=0.9),

@@ -206,6 +206,28 @@ def plane_refined(refined: PointRefinement, source: np.ndarray, target: Neighbou
     return candidate if (candidate.distances < voxel_size).sum() >= (refined.distances < voxel_size).sum() else refined
 
 
+def settled(refined: PointRefinement, one_round: Callable[[np.ndarray], PointRefinement], source: np.ndarray,
+            voxel_size: float, rounds: int) -> PointRefinement:
+    """``refined``, refined again (``one_round``: the point level, then planes) until a round moves
+    it by less than a right pose is known at this resolution (resolution_uncertainty), at most
+    ``rounds`` times (estimation.settle_rounds). The point-level refinement stops when its inlier
+    count stops changing; where tau_e spans several keypoint spacings, a scan whose keypoints
+    nearly all lie within it keeps that count while the pose still moves, and a pose stopped part
+    way down its basin, degrees from where the data put it, was published. A round is taken only
+    when it puts at least as many keypoints within a voxel of the target (as plane_refined judges
+    a step). A pose that has settled is returned as it was."""
+    for _ in range(rounds):
+        again = one_round(refined.transform)
+        known_m, known_rad = resolution_uncertainty(refined.transform, source[refined.source_index], voxel_size)
+        if (translation_error(again.transform, refined.transform) <= known_m
+                and np.radians(rotation_error_deg(again.transform, refined.transform)) <= known_rad):
+            return refined
+        if (again.distances < voxel_size).sum() < (refined.distances < voxel_size).sum():
+            return refined
+        refined = again
+    return refined
+
+
 def inliers_at(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, threshold: float) -> PointRefinement:
     """The keypoints ``T`` brings within ``threshold`` of a target keypoint: the final inliers."""
     distances, nearest = target.nearest_within(transform_points(T, source), threshold)

@@ -30,6 +30,15 @@ GROUND_RANSAC_ITERATIONS = 1000
 GROUND_RANSAC_SAMPLE = 4000  # points that score each candidate plane
 
 
+def ground_removed_between(config: FeatureConfig, *clouds: SeenCloud) -> bool:
+    """Whether the ground leaves the keypoints of a registration between ``clouds``
+    (features.remove_ground): only when every one is seen from known sensors. The rings a spinning
+    sensor draws on the ground match between two scans at the same place around each sensor; a
+    cloud aggregated along a trajectory (a map, a submap: no viewpoint) has them smeared, and there
+    the ground holds most of a low or narrow sensor's keypoints and the context of what stands on it."""
+    return config.remove_ground and all(c.viewpoints is not None for c in clouds)
+
+
 def largest_plane(points: np.ndarray, distance: float) -> np.ndarray:
     """Mask of the points within ``distance`` of the largest plane (the ground of a LiDAR scan).
 
@@ -96,7 +105,8 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
-            trajectory=None, may_face_sensors: bool = True, rules: Rules | None = None) -> PreparedCloud:
+            trajectory=None, may_face_sensors: bool = True, rules: Rules | None = None,
+            remove_ground: bool | None = None) -> PreparedCloud:
     """Downsample, estimate normals, compute FPFH and L2-normalise the features; with known
     viewpoints also the range image of what each sensor saw (from its raw points), and without
     one the map view (seen from any position; ``trajectory``, the map's sensor poses, adds the
@@ -104,7 +114,9 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     known (viewpoints, or the trajectory), the normals face the nearest of them (toward_nearest),
     unless ``may_face_sensors`` is false: two clouds' features compare only under one convention,
     and register() prepares a source under its target's. Scans fused along odometry have their views
-    read as wide as their own disagreement asks (shake.py, under the judge's ``rules``)."""
+    read as wide as their own disagreement asks (shake.py, under the judge's ``rules``).
+    ``remove_ground``: whether the largest plane is dropped before keypoints; None decides from the
+    cloud alone (ground_removed_between)."""
     if cloud.viewpoints is not None:
         for i, vp in enumerate(cloud.viewpoints):
             check_viewpoint(vp, name if len(cloud.parts) == 1 else f"{name} scan {i}")
@@ -114,7 +126,9 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     input_size = len(points)
     down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(config.voxel_size)
     surface = np.asarray(down.points, dtype=np.float64)
-    if config.remove_ground and len(down.points) >= GROUND_MIN_POINTS:
+    if remove_ground is None:
+        remove_ground = ground_removed_between(config, cloud)
+    if remove_ground and len(down.points) >= GROUND_MIN_POINTS:
         ground = largest_plane(np.asarray(down.points), config.voxel_size)
         down = down.select_by_index(np.flatnonzero(ground).tolist(), invert=True)
     n = len(down.points)
@@ -152,4 +166,4 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     index = FeatureIndex(features, config.exact_search_limit, config.search_probes,
                          config.search_probes_nearest)
     return PreparedCloud(keypoints, normals, features, cKDTree(keypoints), index, config,
-                         input_size, views, map_view, toward, shake)
+                         input_size, views, map_view, toward, shake, remove_ground)

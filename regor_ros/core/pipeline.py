@@ -18,9 +18,10 @@ from .estimate import (
     pose_covariance,
     poses_close,
     resolution_uncertainty,
+    settled,
     weighted_kabsch,
 )
-from .features import prepare
+from .features import ground_removed_between, prepare
 from .gate.evidence import Evidence
 from .gate.figures import Figures, RivalFigures
 from .gate.judge import Rules, Verdict, judge, passes, undecided
@@ -215,10 +216,11 @@ def _check_same_viewpoint(cloud: PreparedCloud, viewpoint: np.ndarray | None, na
 def for_clouds_seen_from(config: RegorConfig, *viewpoints) -> RegorConfig:
     """``config`` for preparing the clouds of one registration one by one (a benchmark's pair, a
     batch row), given each one's viewpoint (None when unknown): their normals may face their
-    sensors only when every viewpoint is known, since register() refuses two clouds prepared
-    under different conventions (_normals_toward_sensors)."""
+    sensors, and their ground leave the keypoints, only when every viewpoint is known, since
+    register() refuses two clouds prepared under different conventions (_normals_toward_sensors,
+    _ground_removed)."""
     if any(v is None for v in viewpoints):
-        return config.replace({"features.normals_toward_sensors": False})
+        return config.replace({"features.normals_toward_sensors": False, "features.remove_ground": False})
     return config
 
 
@@ -248,14 +250,31 @@ def _normals_toward_sensors(source: SeenCloud | PreparedCloud, target: SeenCloud
     return toward
 
 
+def _ground_removed(source: SeenCloud | PreparedCloud, target: SeenCloud | PreparedCloud,
+                    config: RegorConfig) -> bool:
+    """Whether both clouds' keypoints leave out the ground (ground_removed_between): the features
+    compare only when both did or neither. A prepared cloud's is fixed and a raw one follows it."""
+    fixed = {c.ground_removed for c in (source, target) if isinstance(c, PreparedCloud)}
+    if len(fixed) > 1:
+        raise RegistrationError(
+            "one cloud was prepared with its ground removed (a scan seen from a known sensor) and the "
+            "other with its ground kept (a cloud without viewpoint, or prepared beside one), so their "
+            "features do not compare; prepare them as one pair (for_clouds_seen_from), or both with "
+            "features.remove_ground=false")
+    if fixed:
+        return fixed.pop()
+    return ground_removed_between(config.features, source, target)
+
+
 def _prepared(cloud: SeenCloud | PreparedCloud, config: RegorConfig, name: str,
-              may_face_sensors: bool) -> PreparedCloud:
+              may_face_sensors: bool, remove_ground: bool) -> PreparedCloud:
     if isinstance(cloud, PreparedCloud):
         if cloud.config != config.features:
             raise RegistrationError(f"{name} was prepared with other feature settings; prepare it "
                                     "again with this configuration")
         return cloud
-    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, rules=Rules(config.acceptance))
+    return prepare(cloud, config.features, name, may_face_sensors=may_face_sensors, rules=Rules(config.acceptance),
+                   remove_ground=remove_ground)
 
 
 def prepare_pair(source: SourceInput, target: CloudInput, config: RegorConfig, source_viewpoint=FROM_CLOUD,
@@ -264,8 +283,9 @@ def prepare_pair(source: SourceInput, target: CloudInput, config: RegorConfig, s
     their sensors): the inputs of register() and verify() checked and prepared as one pair."""
     raw_source, raw_target = _raw(source, source_viewpoint, "source"), _raw(target, target_viewpoint, "target")
     toward = _normals_toward_sensors(raw_source, raw_target, config)
-    return (raw_source, _prepared(raw_source, config, "source", toward),
-            _prepared(raw_target, config, "target", toward), toward)
+    ground = _ground_removed(raw_source, raw_target, config)
+    return (raw_source, _prepared(raw_source, config, "source", toward, ground),
+            _prepared(raw_target, config, "target", toward, ground), toward)
 
 
 def register(source: SourceInput, target: CloudInput, config: RegorConfig | None = None, *,
@@ -317,7 +337,7 @@ def _register(source, target, config, source_viewpoint, target_viewpoint, search
         regrid_start = time.perf_counter()
         try:
             turned = prepare(raw_source.moved(turn), config.features, "source", may_face_sensors=toward,
-                             rules=Rules(acceptance))
+                             rules=Rules(acceptance), remove_ground=prepared_source.ground_removed)
         except RegistrationError:  # this grid keeps too few points: the verdict so far stands
             break
         retry = _register_once(turned, target, config, prior and prior.turned(turn[:3, :3]))
@@ -414,6 +434,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     if config.estimation.visible_candidates and not plausible(refined.transform):
         refined, selected = _visible_instead(refined, selected, initial.candidates, src_cloud, tgt_cloud, config,
                                              prior, plausible)
+    refined = settled(refined, lambda T: _refined_all(T[None], src_cloud, tgt_cloud, config, prior)[0],
+                      src_cloud.points, config.features.voxel_size, config.estimation.settle_rounds)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]

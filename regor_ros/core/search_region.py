@@ -54,4 +54,5 @@ def restrict(target: PreparedCloud, region: SearchRegion, source: PreparedCloud)
     points, features, config = target.points[keep], target.features[keep], target.config
     return PreparedCloud(points, target.normals[keep], features, cKDTree(points),
                          target.index.restricted(keep, features), config, target.input_size,
-                         target.views, target.map_view, target.normals_toward_sensors, target.shake_bins)
+                         target.views, target.map_view, target.normals_toward_sensors, target.shake_bins,
+                         target.ground_removed)

@@ -2,7 +2,7 @@
 with register()'s gate, without a global search.
 
 The pose is refined from where it was given, as the estimator refines a pose (point level, then
-planes), and the gate measures every figure there (gate/measure.py) and judges it with the one
+planes, until it settles), and the gate measures every figure there (gate/measure.py) and judges it with the one
 judge. The feature matches are the search's (each source keypoint's nearest target descriptor), so
 the test against chance is the search's own: the given pose is counted as the best of as many
 poses as register()'s search would try on this source, since whoever found it searched too. Its
@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import agreeing, plane_refined, point_refine, pose_covariance, resolution_uncertainty
+from .estimate import agreeing, plane_refined, point_refine, pose_covariance, resolution_uncertainty, settled
 from .gate.figures import Figures
 from .gate.judge import Rules, Verdict, judge
 from .gate.measure import measure
@@ -82,10 +82,15 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     prior = GravityPrior.of(config.gravity)
     est, voxel = config.estimation, config.features.voxel_size
     clamp = clamp_of(prior)
-    refined = point_refine(given, source.points, target.neighbours, est.inlier_threshold, est.max_iterations, clamp)
-    if est.plane_refinement:
-        refined = plane_refined(refined, source.points, target.neighbours, target.normals, est.inlier_threshold,
-                                voxel, clamp)
+
+    def one_round(T: np.ndarray):
+        refined = point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations, clamp)
+        if not est.plane_refinement:
+            return refined
+        return plane_refined(refined, source.points, target.neighbours, target.normals, est.inlier_threshold,
+                             voxel, clamp)
+
+    refined = settled(one_round(given), one_round, source.points, voxel, est.settle_rounds)
     T = refined.transform
     inliers_source, inliers_target = source.points[refined.source_index], target.points[refined.target_index]
     matched = target.points[matches.target_index]

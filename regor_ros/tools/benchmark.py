@@ -43,6 +43,10 @@ def main(argv=None) -> int:
         # each pair's registration is seeded with its motion's seed (0 without --rotate): refused, not ignored
         parser.error("--set seed has no effect on pairs and --threedmatch, whose registrations take their "
                      "motion's seed (--rotate SEED ...; 0 without); it applies with --maps")
+    if (args.stress or args.narrow) and (args.profile or args.verify or instead != "--maps"):
+        parser.error("--stress and --narrow change the queries of a --maps run")
+    if args.stress and args.narrow:
+        parser.error("--stress and --narrow are two runs: give one")
     if args.no_viewpoints and (args.profile or instead not in (None, "--threedmatch")):
         parser.error("--no-viewpoints is for pairs and --threedmatch (a map's view comes from its trajectory)")
     # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
@@ -105,6 +109,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="with --maps: each map enlarged with the other places' maps (the true place "
                              "still inside), queries single, thinned to every 4th point and fused: chance "
                              "support is high")
+    parser.add_argument("--narrow", action="store_true",
+                        help="with --maps: each query scan as a narrow solid-state sensor at its origin would "
+                             "see it (70 x 70 deg, a return per 0.7 deg), facing four ways: sparse scans, "
+                             "and from xseason, sparse scans from another recording than their map's")
     parser.add_argument("--map-scaling", type=Path, metavar="SEQUENCE",
                         help="instead: tile the map of one sequence folder --tiles times and measure "
                              "preparation, registration time and peak memory against map size")
@@ -170,7 +178,15 @@ def _map_main(args, argv, parser) -> int:
     from ..core import ConfigError, RegorConfig
     from .batch_benchmark import run_batch_scaling
     from .bench_results import LEVEL_NOTE, header
-    from .map_benchmark import LEVEL_MOUNTED, MAP_METHODS, STRESS_NOTE, TILE_SPACING, run_maps, run_scaling
+    from .map_benchmark import (
+        LEVEL_MOUNTED,
+        MAP_METHODS,
+        NARROW_NOTE,
+        STRESS_NOTE,
+        TILE_SPACING,
+        run_maps,
+        run_scaling,
+    )
     from .register_cli import parse_overrides
 
     try:
@@ -194,7 +210,8 @@ def _map_main(args, argv, parser) -> int:
     elif args.maps:
         report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,
                           header("regor_ros scan-to-map benchmark", argv) + about + LEVEL_NOTE * args.level
-                          + STRESS_NOTE * args.stress, args.pairs, args.stress)
+                          + STRESS_NOTE * args.stress + NARROW_NOTE * args.narrow, args.pairs, args.stress,
+                          args.narrow)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header(
             "regor_ros map scaling benchmark", argv) + about + " The map is tiled: identical copies "
