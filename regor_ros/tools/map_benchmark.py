@@ -61,10 +61,10 @@ MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_k
 TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
 # --narrow: each query scan as a narrow solid-state sensor at its origin would see it, facing four
 # ways about its z axis: the nearest return in each NARROW_STEP_DEG bin over NARROW_FIELD_DEG square,
-# the Livox Avia's field (70.4 x 77.2 deg) with about the 5 k returns of the Avia maps' decimated
-# scans (which keep about 3.3 k bins of this size: their pattern repeats within a bin); a view with
-# fewer than NARROW_MIN_RETURNS faces the sky or the scanner's blind side and is no query. The xseason
-# winter scans seen so are sparse scans from another recording than their map's (the summer's).
+# about a Livox Avia's field and the returns of the Avia maps' decimated scans (bins finer than a
+# degree: the Avia's pattern returns several points within one); a view with fewer than
+# NARROW_MIN_RETURNS faces the sky or the scanner's blind side and is no query. The xseason winter
+# scans seen so are sparse scans from another recording than their map's (the summer's).
 NARROW_FIELD_DEG = 70.0
 NARROW_STEP_DEG = 0.7
 NARROW_HEADINGS = (0, 90, 180, 270)
