@@ -30,7 +30,7 @@ GROUND_RANSAC_ITERATIONS = 1000
 GROUND_RANSAC_SAMPLE = 4000  # points that score each candidate plane
 
 
-def ground_removed_between(config: FeatureConfig, *clouds: SeenCloud) -> bool:
+def ground_removed_between(config: FeatureConfig, *clouds: SeenCloud | PreparedCloud) -> bool:
     """Whether the ground leaves the keypoints of a registration between ``clouds``
     (features.remove_ground): only when every one is seen from known sensors. The rings a spinning
     sensor draws on the ground match between two scans at the same place around each sensor; a

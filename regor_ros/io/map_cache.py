@@ -24,7 +24,8 @@ from ..core.config import FeatureConfig
 from ..core.feature_index import FeatureIndex
 from ..core.map_view import MapView
 
-CACHE_VERSION = 4  # raise when the saved arrays or their meaning change (3: normals face the sensors; 4: a map keeps its ground)
+# raise when the saved arrays or their meaning change (3: normals face the sensors; 4: a map keeps its ground)
+CACHE_VERSION = 4
 
 
 class CacheError(Exception):

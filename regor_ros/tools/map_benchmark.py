@@ -195,9 +195,9 @@ def enlarged(cloud: np.ndarray, trajectory: np.ndarray | None, others: list[str]
 
 def _run_map(job) -> list[dict]:
     """One method on every query against one map (in a child process): the map's own queries,
-    then every other sequence's (cross-map: no true pose), each as each of ``inputs``. Under ``stress`` the map is enlarged
-    with the other places' maps instead (``enlarged``), its own queries also go in thinned, and
-    there is no cross-map set (the other places are inside the map)."""
+    then every other sequence's (cross-map: no true pose), each as each of ``inputs``. Under
+    ``stress`` the map is enlarged with the other places' maps instead (``enlarged``), its own
+    queries also go in thinned, and there is no cross-map set (the other places are inside the map)."""
     folder, others, method, config, stress, inputs = job
     warm_up()  # this child's compile or cache load, before any clock starts
     cloud, trajectory, queries = load_sequence(Path(folder))
