@@ -179,7 +179,9 @@ def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: 
     as seen from where it was built. A ScanSequence carries its own viewpoints.
 
     With the sensor positions known, the normals face them (features.normals_toward_sensors):
-    register() then compares it only with a cloud whose sensor positions are known too."""
+    register() then compares it only with a cloud whose sensor positions are known too. A cloud
+    without viewpoint keeps its ground among its keypoints (features.ground_removed_between), and a
+    scan registered against it keeps its own."""
     if isinstance(points, ScanSequence):
         if viewpoint is not None:
             raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
