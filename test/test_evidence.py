@@ -11,33 +11,27 @@ from regor_ros.core.gate.evidence import independent, log10_binomial_tail, log10
 from regor_ros.core.gate.visibility import free_space_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.map_benchmark import load_sequence
+from regor_ros.tools.map_benchmark import THINNING, load_sequence
 from regor_ros.tools.pairs_benchmark import cross_place_pairs, load_pairs
 
 OUTDOOR = RegorConfig.preset("outdoor")
 
 
-@pytest.fixture(scope="module")
-def avia_sequence():
+def test_a_sparse_scans_wrong_pose_with_chance_feature_support_is_rejected_as_chance():
+    """The loop's way back, scan_000180 thinned to every 4th point (a narrow-field Avia scan at a
+    16-ring density), judged at the point-level pose: it lands far off inside the dense map with
+    more agreeing feature matches than the fixed count asks for (10), but they come from a few
+    descriptor neighbourhoods: in a search of ~1000 hypotheses against 45 k map keypoints, chance
+    gives that much. The normals keep the solver's signs here, with the count fitted under them: a
+    wrong pose that reaches the count is what this check is for. (The outdoor preset's
+    verification picks look for the right place instead: off here, so the wrong pose is judged.)"""
     require_shared_data("the evidence tests")
-    return load_sequence(DATA / "maps" / "fastlio_avia_hku2")
-
-
-def test_a_sparse_scans_wrong_pose_with_chance_feature_support_is_rejected_as_chance(avia_sequence):
-    """scan_000039 alone (a narrow-field Avia scan), judged at the point-level pose: it lands
-    100 deg off inside the dense map with more agreeing feature matches (11) than the fixed count
-    asks for (10), but they come from two descriptor neighbourhoods: in a search of ~1000
-    hypotheses against 42 k map keypoints, chance gives that much. The normals keep the solver's
-    signs here, with the count fitted under them: facing the sensors, no wrong pose of the shared
-    map queries reaches even that count (measured: 8 at most), and a wrong pose that does is what
-    this check is for. (The outdoor preset's verification picks find the right place for this
-    scan instead: off here, so the wrong pose is judged.)"""
-    cloud, trajectory, queries = avia_sequence
+    cloud, trajectory, queries = load_sequence(DATA / "revisit" / "avia_hku2_loop")
     config = OUTDOOR.replace({"estimation.plane_refinement": False, "features.normals_toward_sensors": False,
                               "acceptance.min_feature_inliers": 10, "estimation.visible_candidates": 0})
     prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
-    query = {q.id: q for q in queries}["scan_000039"]
-    result = register(query.scan, prepared, config)
+    query = {q.id: q for q in queries}["scan_000180"]
+    result = register(query.scan[::THINNING], prepared, config)
     assert not is_success(result.transform, query.truth, "outdoor")
     assert result.feature_inliers >= config.acceptance.min_feature_inliers   # chance reached the count
     assert not result.accepted
