@@ -436,8 +436,7 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     if config.estimation.visible_candidates and not plausible(refined.transform):
         refined, selected = _visible_instead(refined, selected, initial.candidates, src_cloud, tgt_cloud, config,
                                              prior, plausible)
-    refined = settled(refined, lambda T: _refined_all(T[None], src_cloud, tgt_cloud, config, prior)[0],
-                      src_cloud.points, config.features.voxel_size, config.estimation.settle_rounds)
+    refined = _refined_until_settled(refined, src_cloud, tgt_cloud, config, prior)
     T = refined.transform
     final_src = src_cloud.points[refined.source_index]
     final_tgt = tgt_cloud.points[refined.target_index]
@@ -489,6 +488,21 @@ def _visible_instead(refined, selected: str, candidates: list, source: PreparedC
                                lambda poses: _refined_all(poses, source, target, config, prior), plausible,
                                config.initial.inlier_threshold)
     return (refined, selected) if picked is None else (picked, "candidate")
+
+
+def _refined_until_settled(refined, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+                           prior: GravityPrior | None):
+    """``refined`` refined again by the estimator's rounds until it settles (estimate.settled,
+    estimation.settle_rounds): register()'s last step, and verify()'s on the given pose."""
+    return settled(refined, lambda T: _refined_all(T[None], source, target, config, prior)[0], source.points,
+                   config.features.voxel_size, config.estimation.settle_rounds)
+
+
+def refined_from(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,
+                 prior: GravityPrior | None):
+    """The estimator's refinement of one pose (point level, then planes), settled."""
+    return _refined_until_settled(_refined_all(T[None], source, target, config, prior)[0], source, target, config,
+                                  prior)
 
 
 def _refined_all(poses: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: RegorConfig,

@@ -24,16 +24,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import RegorConfig
-from .estimate import agreeing, plane_refined, point_refine, pose_covariance, resolution_uncertainty, settled
+from .estimate import agreeing, pose_covariance, resolution_uncertainty
 from .gate.figures import Figures
 from .gate.judge import Rules, Verdict, judge
 from .gate.measure import measure
 from .gate.visibility import VisibilityFigures
-from .gravity import GravityPrior, clamp_of
+from .gravity import GravityPrior
 from .kernels import blas_on_one_thread
 from .matching import match_features
 from .metrics import rotation_error_deg, translation_error
-from .pipeline import FROM_CLOUD, CloudInput, SourceInput, prepare_pair
+from .pipeline import FROM_CLOUD, CloudInput, SourceInput, prepare_pair, refined_from
 from .sequence import checked_pose
 
 
@@ -80,17 +80,8 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     matches = match_features(source, target, 1, np.zeros(0, dtype=np.int64), mutual=False)
     prepared = time.perf_counter()
     prior = GravityPrior.of(config.gravity)
-    est, voxel = config.estimation, config.features.voxel_size
-    clamp = clamp_of(prior)
-
-    def one_round(T: np.ndarray):
-        refined = point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations, clamp)
-        if not est.plane_refinement:
-            return refined
-        return plane_refined(refined, source.points, target.neighbours, target.normals, est.inlier_threshold,
-                             voxel, clamp)
-
-    refined = settled(one_round(given), one_round, source.points, voxel, est.settle_rounds)
+    voxel = config.features.voxel_size
+    refined = refined_from(given, source, target, config, prior)
     T = refined.transform
     inliers_source, inliers_target = source.points[refined.source_index], target.points[refined.target_index]
     matched = target.points[matches.target_index]
