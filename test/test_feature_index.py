@@ -180,6 +180,40 @@ def test_the_by_cell_scan_breaks_ties_by_row_whatever_the_thread_count():
     np.testing.assert_array_equal(found, table.ids[position])
 
 
+def brute_top_k(queries, probed, table, bounds, k):
+    """The by-cell scan's answer the slow way: every row of each query's probed cells ranked by
+    similarity, ties to the lower row; -1 and -inf past the rows there are."""
+    positions = np.full((len(queries), k), -1)
+    similarities = np.full((len(queries), k), -np.inf, np.float32)
+    for q, cells in enumerate(probed):
+        rows = np.concatenate([np.arange(bounds[c], bounds[c + 1]) for c in cells])
+        dots = table[rows] @ queries[q]
+        order = np.lexsort((rows, -dots))[:k]
+        positions[q, :len(order)], similarities[q, :len(order)] = rows[order], dots[order]
+    return positions, similarities
+
+
+def test_the_by_cell_scan_s_sampled_floor_keeps_the_exact_answer_where_it_leaves_too_few():
+    """Each query's floor is sampled from every 16th row of its cells; where the rows above it are
+    fewer than k (probed cells holding fewer rows than k, or a floor that fell too high) the query
+    is scanned again without one. Either way the answer is every row ranked (to 1e-6: the scan's
+    products run in blocks)."""
+    rng = np.random.default_rng(7)
+    k = 20
+    cell_sizes = np.concatenate([rng.integers(1, 4, 30), rng.integers(40, 120, 10)])   # small cells, then large
+    bounds = np.concatenate([[0], np.cumsum(cell_sizes)]).astype(np.int64)
+    table = unit_rows(rng, int(bounds[-1]))
+    queries = unit_rows(rng, 60)
+    few = rng.permuted(np.tile(np.arange(30), (30, 1)), axis=1)[:, :5]     # five small cells: under k rows
+    many = rng.permuted(np.tile(np.arange(30, 40), (30, 1)), axis=1)[:, :5]
+    probed = np.vstack([few, many]).astype(np.int64)
+    position, similarity = kernels.cell_top_k(queries, probed, table, bounds, k, 2)
+    expected_position, expected_similarity = brute_top_k(queries, probed, table, bounds, k)
+    np.testing.assert_array_equal(position, expected_position)
+    np.testing.assert_allclose(similarity, expected_similarity, rtol=0, atol=1e-6)
+    assert (position[:30] == -1).any() and (position[30:] >= 0).all()
+
+
 def test_nearest_and_candidates_takes_a_candidate_row_s_first_only_in_an_inverted_file():
     """Against a scan (exact) every query gets its nearest row as a search for it alone does;
     against an inverted file a query with candidates takes its first as its nearest row, which is

@@ -611,17 +611,17 @@ def _replace_worst(heap, key):
 
 
 @njit(inline="always")
-def _offer_to_heap(heap, dots, start):
+def _offer_to_heap(heap, dots, start, floor):
     """Offer a run of similarities (positions start, start + 1, ...) to a top-k heap of keys: one
     array of k per query, which suits a scan that visits the queries' lists in scattered order,
     a few hundred similarities at a time (a buffered list's floor, count and spare room were
-    slower there). Positions ascend
-    within a run and across the runs offered, so an equal one is never better."""
-    worst = _similarity_of(heap[0])
+    slower there). Only a similarity above ``floor`` is taken. Positions ascend within a run and
+    across the runs offered, so an equal one is never better."""
+    bar = max(_similarity_of(heap[0]), floor)
     for j in range(len(dots)):
-        if dots[j] > worst:
+        if dots[j] > bar:
             _replace_worst(heap, _rank_key(dots[j], start + j))
-            worst = _similarity_of(heap[0])
+            bar = max(_similarity_of(heap[0]), floor)
 
 
 @njit(inline="always")
@@ -693,46 +693,120 @@ def cell_top_k(queries, probed, table, bounds, k, chunks):
     the queries that probe it, where a query-by-query scan streams every probed cell from memory
     per query. The cells are split into ``chunks`` runs of about equal work, each keeping its own
     top k per query; the runs are merged in the list's order, so the result does not depend on
-    ``chunks`` (the thread count)."""
+    ``chunks`` (the thread count). Keeping the heaps is most of the scan's work, so a first pass
+    over every FLOOR_STRIDE-th row of each cell sets each query a floor (``_sampled_floor``: about
+    its 3k-th best), and a heap takes only what is above it; a query left with fewer than k above
+    its floor is scanned again without one, from the same products (``_cell_pass``)."""
     n_queries, n_probed = probed.shape
-    dims = queries.shape[1]
     cells = len(bounds) - 1
-    # the (query, cell) pairs grouped by cell, queries ascending (a counting sort)
+    rows = bounds[1:] - bounds[:-1]
+    sampled_rows = (rows + FLOOR_STRIDE - 1) // FLOOR_STRIDE
+    # the (query, cell) pairs grouped by cell, queries ascending (a counting sort), and where each
+    # pair's sampled similarities go in its query's run of them
     asking_start = np.zeros(cells + 1, np.int64)
+    samples = np.zeros(n_queries + 1, np.int64)
     for q in range(n_queries):
         for p in range(n_probed):
             asking_start[probed[q, p] + 1] += 1
+            samples[q + 1] += sampled_rows[probed[q, p]]
     asking_start = np.cumsum(asking_start)
+    samples = np.cumsum(samples)
     filled = asking_start[:-1].copy()
     asking = np.empty(n_queries * n_probed, np.int64)
+    sample_at = np.empty(n_queries * n_probed, np.int64)
     for q in range(n_queries):
+        at = samples[q]
         for p in range(n_probed):
             c = probed[q, p]
             asking[filled[c]] = q
+            sample_at[filled[c]] = at
+            at += sampled_rows[c]
             filled[c] += 1
-    rows = bounds[1:] - bounds[:-1]
     work = np.cumsum((asking_start[1:] - asking_start[:-1]) * (rows + 8))
     first = np.full(chunks + 1, cells, np.int64)
     first[0] = 0
     if cells:
         first[1:chunks] = np.searchsorted(work, work[-1] * np.arange(1, chunks) / chunks)
-    heaps = np.full((chunks, n_queries, k), _EMPTY, np.uint64)
-    for t in prange(chunks):
-        for c in range(first[t], first[t + 1]):
-            start, n, first_asking = bounds[c], rows[c], asking_start[c]
-            if n == 0 or asking_start[c + 1] == first_asking:
-                continue
-            block = np.empty((asking_start[c + 1] - first_asking, dims), np.float32)
-            for a in range(len(block)):
-                block[a] = queries[asking[first_asking + a]]
-            dots = np.dot(block, table[start:start + n].T)
-            for a in range(len(block)):
-                _offer_to_heap(heaps[t, asking[first_asking + a]], dots[a], start)
+    floor = np.full(n_queries, -np.inf, np.float32)
+    if 3 * k > FLOOR_STRIDE:    # a floor from one sampled similarity would be one of the k itself
+        _sampled_floors(queries, table, bounds, asking, asking_start, first, sample_at, samples, sampled_rows,
+                        k, chunks, floor)
+    heaps = _cell_pass(queries, table, bounds, asking, asking_start, first, floor,
+                       np.ones(n_queries, np.bool_), k, chunks)
+    short = np.zeros(n_queries, np.bool_)
+    for q in prange(n_queries):
+        kept = 0
+        for t in range(chunks):
+            for j in range(k):
+                kept += heaps[t, q, j] != _EMPTY
+        short[q] = kept < k and floor[q] > -np.inf
+    if short.any():
+        unfloored = np.full(n_queries, -np.inf, np.float32)
+        again = _cell_pass(queries, table, bounds, asking, asking_start, first, unfloored, short, k, chunks)
+        for q in range(n_queries):
+            if short[q]:
+                heaps[:, q] = again[:, q]
     out_position = np.empty((n_queries, k), np.int64)
     out_similarity = np.empty((n_queries, k), np.float32)
     for q in prange(n_queries):
         _unpack_best(heaps[:, q].ravel(), out_position[q], out_similarity[q])
     return out_position, out_similarity
+
+
+@njit(parallel=True, **JIT)
+def _sampled_floors(queries, table, bounds, asking, asking_start, first, sample_at, samples, sampled_rows, k,
+                    chunks, floor):
+    """Each query's floor (into ``floor``) from its similarities to every FLOOR_STRIDE-th row of
+    the cells it probes (``_sampled_floor``), computed by cell as the scan computes them."""
+    sampled = np.empty(samples[-1], np.float32)
+    for t in prange(chunks):
+        for c in range(first[t], first[t + 1]):
+            start, first_asking = bounds[c], asking_start[c]
+            if sampled_rows[c] == 0 or asking_start[c + 1] == first_asking:
+                continue
+            block = _asking_block(queries, asking, first_asking, asking_start[c + 1])
+            dots = np.dot(block, np.ascontiguousarray(table[start:bounds[c + 1]:FLOOR_STRIDE]).T)
+            for a in range(len(block)):
+                at = sample_at[first_asking + a]
+                sampled[at:at + sampled_rows[c]] = dots[a]
+    for q in prange(len(floor)):
+        floor[q] = _sampled_floor(sampled[samples[q]:samples[q + 1]], k,
+                                  np.empty(samples[q + 1] - samples[q], np.float32))
+
+
+@njit(inline="always")
+def _asking_block(queries, asking, first, last):
+    """The features of the queries asking[first:last], one row each."""
+    block = np.empty((last - first, queries.shape[1]), np.float32)
+    for a in range(len(block)):
+        block[a] = queries[asking[first + a]]
+    return block
+
+
+@njit(parallel=True, **JIT)
+def _cell_pass(queries, table, bounds, asking, asking_start, first, floor, wanted, k, chunks):
+    """cell_top_k's scan: each run of cells (``first``) keeps its own top-k heap of every
+    ``wanted`` query, taking what is above the query's ``floor``; a cell's products with every
+    query that probes it, so a query's similarities are the same bits in any pass."""
+    n_queries = len(queries)
+    heaps = np.full((chunks, n_queries, k), _EMPTY, np.uint64)
+    for t in prange(chunks):
+        for c in range(first[t], first[t + 1]):
+            start, n, first_asking = bounds[c], bounds[c + 1] - bounds[c], asking_start[c]
+            if n == 0 or asking_start[c + 1] == first_asking:
+                continue
+            needed = False
+            for a in range(first_asking, asking_start[c + 1]):
+                needed |= wanted[asking[a]]
+            if not needed:
+                continue
+            block = _asking_block(queries, asking, first_asking, asking_start[c + 1])
+            dots = np.dot(block, table[start:start + n].T)
+            for a in range(len(block)):
+                q = asking[first_asking + a]
+                if wanted[q]:
+                    _offer_to_heap(heaps[t, q], dots[a], start, floor[q])
+    return heaps
 
 
 QUERY_TILE = 256  # queries per product tile of the exact search
