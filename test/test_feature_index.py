@@ -123,7 +123,7 @@ def _faiss_inverted_file(index: FeatureIndex):
     quantizer = faiss.IndexFlatIP(centres.shape[1])
     quantizer.add(centres)
     reference = faiss.IndexIVFFlat(quantizer, centres.shape[1], len(centres), faiss.METRIC_INNER_PRODUCT)
-    features = np.ascontiguousarray(index._cells.table[np.argsort(index._cells.ids)])
+    features = np.ascontiguousarray(index._table().table[np.argsort(index._table().ids)])
     assigned = cells.astype(np.int64)   # both held: swig_ptr does not keep an array alive
     reference.add_core(len(cells), faiss.swig_ptr(features), None, faiss.swig_ptr(assigned))
     return reference
@@ -166,7 +166,7 @@ def test_the_by_cell_scan_breaks_ties_by_row_whatever_the_thread_count():
     data = distinct[rng.integers(0, 300, 6000)]          # every feature many times over
     index = FeatureIndex(data, exact_limit=1000, probes=8, nearest_probes=4)
     queries = unit_rows(rng, 400)
-    table = index._cells
+    table = index._table()
     probed = table.probed(queries, 8)
     answers = [kernels.cell_top_k(queries, probed, table.table, table.bounds, 20, chunks) for chunks in (1, 2, 5)]
     for position, similarity in answers[1:]:
@@ -257,3 +257,21 @@ def test_an_inverted_file_saved_and_restored_searches_as_the_trained_one():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="saved index"):
         FeatureIndex(features[:20000], 10000, 64, 32, saved=(centres, cells))
+
+
+def test_an_inverted_file_is_trained_when_first_searched_and_answers_as_one_trained_at_once():
+    """A scan's or a fused sequence's index is often never searched (register() searches the
+    map's), so its cells are trained only when asked for; a map's are trained before its first
+    query (built), and both answer alike."""
+    rng = np.random.default_rng(5)
+    features = unit_rows(rng, 12000)
+    lazy, eager = FeatureIndex(features, 5000, 32, 16), FeatureIndex(features, 5000, 32, 16).built()
+    assert lazy._cells is None and eager._cells is not None
+    queries = unit_rows(rng, 300)
+    for a, b in zip(lazy.search(queries, 10), eager.search(queries, 10), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert lazy._cells is not None
+    exact = features @ queries.T   # a product of other shapes: the last bit may differ
+    chosen = lazy.most_similar(queries)
+    assert (exact[chosen, np.arange(300)] >= exact.max(axis=0) - 1e-6).all()
+    assert (chosen == exact.argmax(axis=0)).mean() > 0.99

@@ -91,12 +91,31 @@ def test_mutual_flags_and_similarities_agree_with_the_full_matrix():
     m = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64))
     sim = fs @ ft.T
     np.testing.assert_allclose(m.similarity, sim.max(axis=1), rtol=1e-6)
-    np.testing.assert_array_equal(m.mutual, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))
-    assert 0 < m.mutual.sum() <= 300
+    flags = m.mutual(np.arange(5000))
+    np.testing.assert_array_equal(flags, sim.argmax(axis=0)[sim.argmax(axis=1)] == np.arange(5000))
+    assert 0 < flags.sum() <= 300
     unflagged = match_features(cloud(fs), cloud(ft), candidates=5, candidate_rows=np.zeros(0, np.int64),
                                mutual=False)
-    assert unflagged.mutual is None  # the second search is skipped, the matches are the same
+    assert unflagged.back is None  # the second search is skipped, the matches are the same
     np.testing.assert_array_equal(unflagged.target_index, m.target_index)
+
+
+def test_against_an_inverted_file_the_mutual_check_searches_only_the_targets_asked_about():
+    """A map's matches: the source's features are searched exactly for the targets a check asks
+    about, and never the source's own index (a fused sequence's would be trained for nothing)."""
+    rng = np.random.default_rng(4)
+    fs, ft = unit_rows(rng, 3000), unit_rows(rng, 4000)
+    source = SimpleNamespace(features=fs, index=FeatureIndex(fs, 1000, 16, 8))
+    target = SimpleNamespace(features=ft, index=FeatureIndex(ft, 1000, 4000, 4000))  # probes every cell: exact
+    m = match_features(source, target, candidates=5, candidate_rows=np.zeros(0, np.int64))
+    sim = fs @ ft.T
+    asked = np.arange(0, 3000, 7)
+    np.testing.assert_array_equal(m.mutual(asked), sim.argmax(axis=0)[m.target_index[asked]] == asked)
+    assert source.index._cells is None  # the source's inverted file was never trained
+    everything = m.mutual(np.arange(3000))
+    order = np.lexsort((-m.similarity, ~everything))
+    for count in (10, 200, 2999, 3000):
+        np.testing.assert_array_equal(m.mutual_first(count), np.sort(order[:count]))
 
 
 def test_best_subset_takes_mutual_matches_first():
@@ -107,8 +126,8 @@ def test_best_subset_takes_mutual_matches_first():
     mutual = np.zeros(n, bool)
     mutual[::10] = True
     similarity = np.linspace(0, 1, n).astype(np.float32)
-    matches = FeatureMatches(np.arange(n), similarity, mutual, np.arange(0), np.zeros((0, 1), int),
-                             np.zeros((0, 1)))
+    matches = FeatureMatches(np.arange(n), similarity, lambda targets: np.where(mutual[targets], targets, -1),
+                             np.arange(0), np.zeros((0, 1), int), np.zeros((0, 1)))
     best = consensus_subset(matches, InitialConfig(max_correspondences=300, subset="best"), None)
     assert set(np.flatnonzero(mutual)) <= set(best)
     assert similarity[np.setdiff1d(best, np.flatnonzero(mutual))].min() > 0.7

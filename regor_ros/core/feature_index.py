@@ -23,6 +23,7 @@ Features are unit vectors: inner product ranks them as the feature distance does
 """
 from __future__ import annotations
 
+import threading
 from contextlib import contextmanager
 
 import faiss
@@ -116,37 +117,44 @@ class FeatureIndex:
     def __init__(self, features: np.ndarray, exact_limit: int, probes: int, nearest_probes: int,
                  saved: tuple[np.ndarray, np.ndarray] | None = None):
         """``saved``: what ``saved()`` returned for these features and limits (a cached map's
-        trained inverted file, restored instead of trained again)."""
+        trained inverted file, restored instead of trained again). An inverted file is trained
+        when first searched (``built``): a scan's or a fused sequence's is often never searched."""
         features = np.ascontiguousarray(features, dtype=np.float32)
         n, dim = features.shape
         self.size = n
         self.exact = n <= exact_limit
         self._limits = (exact_limit, probes, nearest_probes)
-        self._flat: np.ndarray | None = None  # an exact index's features
+        self._features = features
         self._cells: CellTable | None = None
-        if self.exact:
-            self._flat = features
-        elif saved is not None and len(saved[0]):
+        self._lock = threading.Lock()
+        if not self.exact and saved is not None and len(saved[0]):
             self._cells = _restored(features, *saved)
-        else:
-            self._cells = _trained(features)
 
     def __len__(self) -> int:
         return self.size
 
+    def built(self) -> FeatureIndex:
+        """This index, its inverted file trained now (a map's, before its first query)."""
+        if not self.exact:
+            self._table()
+        return self
+
     def saved(self) -> tuple[np.ndarray, np.ndarray]:
         """The trained inverted file without the features it files: (its cell centres (C, D),
         each row's cell (N,)); both empty for an exact index (rebuilt in no time)."""
-        if self._flat is not None:
-            return np.zeros((0, self._flat.shape[1]), np.float32), np.zeros(0, np.int32)
+        if self.exact:
+            return np.zeros((0, self._features.shape[1]), np.float32), np.zeros(0, np.int32)
         quantizer = self._table().quantizer
         return quantizer.reconstruct_n(0, quantizer.ntotal), self._table().cell_of_each_row()
 
     def _table(self) -> CellTable:
-        """The inverted file of an approximate index."""
-        if self._cells is None:
+        """The inverted file of an approximate index, trained the first time it is asked for."""
+        if self.exact:
             raise ValueError("an exact feature index has no cells")
-        return self._cells
+        with self._lock:
+            if self._cells is None:
+                self._cells = _trained(self._features)
+            return self._cells
 
     def restricted(self, rows: np.ndarray, features: np.ndarray) -> FeatureIndex:
         """An index over ``rows`` (sorted) of this one, whose results are positions in ``rows``;
@@ -156,8 +164,8 @@ class FeatureIndex:
         if len(rows) <= self._limits[0]:  # also whenever this index is exact: rows <= its size
             return FeatureIndex(features, *self._limits)
         view = object.__new__(FeatureIndex)
-        view.size, view.exact, view._limits, view._flat = len(rows), False, self._limits, None
-        view._cells = self._table().subset(np.asarray(rows, dtype=np.int64))
+        view.size, view.exact, view._limits, view._features = len(rows), False, self._limits, features
+        view._cells, view._lock = self._table().subset(np.asarray(rows, dtype=np.int64)), threading.Lock()
         return view
 
     def nearest_and_candidates(self, queries: np.ndarray, rows: np.ndarray, k: int, back: bool = False):
@@ -198,11 +206,18 @@ class FeatureIndex:
         _, probes, nearest_probes = self._limits
         return self._table().search(queries, k, nearest_probes if k == 1 else probes)
 
+    def most_similar(self, queries: np.ndarray) -> np.ndarray:
+        """Each query's most similar row (Q,), by an exact pass over every row whatever kind of
+        index this is: a few thousand queries (the targets a mutual check asks about) against a
+        scan-sized cloud cost less than training and probing its cells."""
+        queries = np.ascontiguousarray(queries, dtype=np.float32)
+        return self._exact(queries, np.full(len(queries), -1, dtype=np.int64), 1, False)[0]
+
     def _exact(self, queries: np.ndarray, slot: np.ndarray, k: int, back: bool):
         """``kernels.flat_search`` over this index's rows, BLAS kept to one thread (the kernel's
         products run on its own threads)."""
         with kernels.blas_on_one_thread():
-            return kernels.flat_search(queries, self._flat, slot, min(k, self.size), back, kernels.threads())
+            return kernels.flat_search(queries, self._features, slot, min(k, self.size), back, kernels.threads())
 
 
 def _trained(features: np.ndarray) -> CellTable:

@@ -133,9 +133,7 @@ def consensus_subset(matches: FeatureMatches, cfg: InitialConfig, rng: np.random
         return np.arange(n_all)
     if cfg.subset == "random":
         return np.sort(rng.choice(n_all, cfg.max_correspondences, replace=False))
-    mutual = np.zeros(n_all, dtype=bool) if matches.mutual is None else matches.mutual
-    order = np.lexsort((-matches.similarity, ~mutual))
-    return np.sort(order[:cfg.max_correspondences])
+    return matches.mutual_first(cfg.max_correspondences)
 
 
 def _near_any(T: np.ndarray, poses: list, angle_deg: float, tolerance: float) -> bool:

@@ -185,8 +185,12 @@ def prepare_cloud(points: np.ndarray | ScanSequence, config: RegorConfig, name: 
     if isinstance(points, ScanSequence):
         if viewpoint is not None:
             raise RegistrationError(f"{name}: a scan sequence carries its viewpoints; give none")
-        return prepare(points.fused(), config.features, name, trajectory, rules=Rules(config.acceptance))
-    return prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name, trajectory)
+        prepared = prepare(points.fused(), config.features, name, trajectory, rules=Rules(config.acceptance))
+    else:
+        prepared = prepare(SeenCloud.single(points, check_viewpoint(viewpoint, name)), config.features, name,
+                           trajectory)
+    prepared.index.built()  # a map's search is ready before its first query
+    return prepared
 
 
 def _raw(cloud: SourceInput, viewpoint, name: str) -> SeenCloud | PreparedCloud:
