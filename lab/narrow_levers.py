@@ -1,5 +1,7 @@
-"""Would more of the narrow views be found and published with the search told where the truth
-is (the best a search over the map's own places could do), or with features at another scale?
+"""Would more of the narrow views be found and published with a hint at where the truth is, or
+with features at another scale? (A hint keeps every map keypoint the view can reach from near the
+truth, which on the shared maps is nearly all of them: it does not bound a search over the map's
+own places; results/narrow_levers/README.md.)
 
 Each query scan of one sequence folder, seen by a narrow sensor as ``regor-bench --narrow`` sees it
 (map_benchmark.narrow_view), registered against the map prepared once, as the benchmark does;
