@@ -275,3 +275,21 @@ def test_an_inverted_file_is_trained_when_first_searched_and_answers_as_one_trai
     chosen = lazy.most_similar(queries)
     assert (exact[chosen, np.arange(300)] >= exact.max(axis=0) - 1e-6).all()
     assert (chosen == exact.argmax(axis=0)).mean() > 0.99
+
+
+def test_a_map_s_cells_are_trained_in_two_levels_and_rows_filed_in_their_most_similar_cell():
+    """The cells of a real map (MulRan, OS1-64) are about CELLS_PER_SQRT sqrt(N), unit centres,
+    trained in two levels; a row is filed among its FILING_COARSE nearest coarse cells, which
+    holds its most similar cell nearly always; and the same features give the same cells."""
+    from regor_ros.core import feature_index
+    _, cloud, _ = load_map_query("scaloam_mulran_kaist03", "scan_000001")
+    target = prepare_cloud(cloud, RegorConfig.preset("outdoor"), viewpoint=None)
+    centres, cells = target.index.saved()
+    expected = feature_index.CELLS_PER_SQRT * np.sqrt(len(target))
+    assert abs(len(centres) - expected) < 0.05 * expected
+    np.testing.assert_allclose(np.linalg.norm(centres, axis=1), 1.0, atol=1e-5)
+    most_similar = np.argmax(target.features.astype(np.float32) @ centres.T, axis=1)
+    assert np.mean(cells == most_similar) > 0.9
+    again = FeatureIndex(target.features, 1000, 8, 4).saved()
+    np.testing.assert_array_equal(again[0], centres)
+    np.testing.assert_array_equal(again[1], cells)

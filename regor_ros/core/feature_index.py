@@ -35,6 +35,9 @@ CELLS_PER_SQRT = 4        # k-means cells = 4 sqrt(n), FAISS's rule of thumb for
 MIN_ROWS_PER_CELL = 40    # k-means needs about 40 training rows per cell
 TRAINING_PER_CELL = 64    # training sample per cell (all rows if fewer)
 KMEANS_SEED = 1234
+KMEANS_ITERATIONS = 10    # FAISS's own for an inverted file's cells
+FILING_COARSE = 2         # coarse cells a row's own cell is looked for in
+FILING_BLOCK = 1 << 15    # rows filed at a time
 
 
 @contextmanager
@@ -221,17 +224,78 @@ class FeatureIndex:
 
 
 def _trained(features: np.ndarray) -> CellTable:
-    """k-means cells for the features (FAISS's, seeded, so the same map gives the same cells),
-    each row filed into the cell of its nearest centre."""
+    """k-means cells for the features, each row filed into the most similar of them.
+
+    Flat k-means over C cells costs a training sample of TRAINING_PER_CELL C rows times C centres
+    per iteration, and filing every row costs N times C: beyond a few hundred thousand keypoints most
+    of a map's preparation. So the cells are trained in two levels: about sqrt(C) coarse cells,
+    then each coarse cell's training rows split into its share of the C cells. A row is filed
+    into the most similar cell of its FILING_COARSE most similar coarse cells, and a query probes
+    the most similar cells among all of them. Spherical k-means (unit centres), since similarity
+    is the inner product of unit features; FAISS's, seeded, so the same map gives the same cells."""
     n, dim = features.shape
     cells = max(1, min(int(round(CELLS_PER_SQRT * np.sqrt(n))), n // MIN_ROWS_PER_CELL))
-    quantizer = faiss.IndexFlatIP(dim)
-    trainer = faiss.IndexIVFFlat(quantizer, dim, cells, faiss.METRIC_INNER_PRODUCT)
-    trainer.cp.seed = KMEANS_SEED
     sample = min(n, TRAINING_PER_CELL * cells)
-    rows = np.random.default_rng(KMEANS_SEED).choice(n, sample, replace=False) if sample < n else slice(None)
-    trainer.train(features[rows])    # fills the quantizer with the centres
-    return CellTable.filed(quantizer, features, quantizer.assign(features, 1)[:, 0])
+    training = features[np.sort(np.random.default_rng(KMEANS_SEED).choice(n, sample, replace=False))]
+    coarse = _kmeans(training, int(round(np.sqrt(cells))), KMEANS_SEED)
+    owner = _most_similar(training, coarse)
+    centres, of_coarse = [], []
+    for group in range(len(coarse)):
+        rows = training[owner == group]
+        count = min(max(1, int(round(cells * len(rows) / sample))), max(1, len(rows) // MIN_ROWS_PER_CELL))
+        centres.append(_kmeans(rows, count, KMEANS_SEED + 1 + group) if len(rows) else coarse[group][None])
+        of_coarse.append(np.full(len(centres[-1]), group))
+    fine = np.ascontiguousarray(np.concatenate(centres), dtype=np.float32)
+    quantizer = faiss.IndexFlatIP(dim)
+    quantizer.add(fine)
+    return CellTable.filed(quantizer, features, _filed(features, coarse, fine, np.concatenate(of_coarse)))
+
+
+def _kmeans(rows: np.ndarray, count: int, seed: int) -> np.ndarray:
+    """``count`` unit centres of ``rows`` (fewer rows than that: the rows themselves)."""
+    if len(rows) <= count:
+        return np.ascontiguousarray(rows, dtype=np.float32)
+    if count == 1:
+        mean = rows.mean(axis=0)
+        return (mean / max(float(np.linalg.norm(mean)), 1e-12))[None].astype(np.float32)
+    kmeans = faiss.Kmeans(rows.shape[1], count, niter=KMEANS_ITERATIONS, seed=seed, spherical=True)
+    kmeans.train(np.ascontiguousarray(rows, dtype=np.float32))
+    return np.asarray(kmeans.centroids)
+
+
+def _most_similar(rows: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Each row's most similar centre (ties to the lower one)."""
+    return np.argmax(rows @ centres.T, axis=1)
+
+
+def _filed(features: np.ndarray, coarse: np.ndarray, fine: np.ndarray, of_coarse: np.ndarray) -> np.ndarray:
+    """(N,) each row's cell: the most similar fine centre among those of its FILING_COARSE most
+    similar coarse cells, a block of rows at a time (the products of every row with every coarse
+    centre at once would be the map's size times theirs)."""
+    members = [np.flatnonzero(of_coarse == group) for group in range(len(coarse))]
+    nearest = min(FILING_COARSE, len(coarse))
+    cells = np.empty(len(features), dtype=np.int64)
+    for start in range(0, len(features), FILING_BLOCK):
+        block = features[start:start + FILING_BLOCK]
+        similarity = block @ coarse.T
+        near = np.empty((len(block), nearest), dtype=np.int64)
+        for k in range(nearest):   # the k-th most similar coarse cell, ties to the lower one
+            near[:, k] = np.argmax(similarity, axis=1)
+            similarity[np.arange(len(block)), near[:, k]] = -np.inf
+        pair_row = np.repeat(np.arange(len(block)), nearest)[np.argsort(near.ravel(), kind="stable")]
+        bounds = np.searchsorted(np.sort(near.ravel()), np.arange(len(coarse) + 1))
+        best = np.full(len(block), -np.inf, dtype=np.float32)
+        cell = cells[start:start + FILING_BLOCK]
+        for group in range(len(coarse)):
+            rows = pair_row[bounds[group]:bounds[group + 1]]
+            if not len(rows):
+                continue
+            fine_similarity = block[rows] @ fine[members[group]].T
+            pick = np.argmax(fine_similarity, axis=1)
+            value = fine_similarity[np.arange(len(rows)), pick]
+            better = value > best[rows]   # groups in order, so a tie keeps the lower cell
+            best[rows[better]], cell[rows[better]] = value[better], members[group][pick[better]]
+    return cells
 
 
 def _restored(features: np.ndarray, centres: np.ndarray, cells: np.ndarray) -> CellTable:

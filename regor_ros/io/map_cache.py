@@ -24,8 +24,9 @@ from ..core.config import FeatureConfig
 from ..core.feature_index import FeatureIndex
 from ..core.map_view import MapView
 
-# raise when the saved arrays or their meaning change (3: normals face the sensors; 4: a map keeps its ground)
-CACHE_VERSION = 4
+# raise when the saved arrays or their meaning change (3: normals face the sensors; 4: a map keeps its
+# ground; 5: the index's cells trained in two levels)
+CACHE_VERSION = 5
 
 
 class CacheError(Exception):
