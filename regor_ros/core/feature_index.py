@@ -238,7 +238,7 @@ def _trained(features: np.ndarray) -> CellTable:
     sample = min(n, TRAINING_PER_CELL * cells)
     training = features[np.sort(np.random.default_rng(KMEANS_SEED).choice(n, sample, replace=False))]
     coarse = _kmeans(training, int(round(np.sqrt(cells))), KMEANS_SEED)
-    owner = _most_similar(training, coarse)
+    owner = np.argmax(training @ coarse.T, axis=1)   # each sample row's coarse cell
     centres, of_coarse = [], []
     for group in range(len(coarse)):
         rows = training[owner == group]
@@ -263,11 +263,6 @@ def _kmeans(rows: np.ndarray, count: int, seed: int) -> np.ndarray:
     return np.asarray(kmeans.centroids)
 
 
-def _most_similar(rows: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Each row's most similar centre (ties to the lower one)."""
-    return np.argmax(rows @ centres.T, axis=1)
-
-
 def _filed(features: np.ndarray, coarse: np.ndarray, fine: np.ndarray, of_coarse: np.ndarray) -> np.ndarray:
     """(N,) each row's cell: the most similar fine centre among those of its FILING_COARSE most
     similar coarse cells, a block of rows at a time (the products of every row with every coarse
@@ -282,8 +277,9 @@ def _filed(features: np.ndarray, coarse: np.ndarray, fine: np.ndarray, of_coarse
         for k in range(nearest):   # the k-th most similar coarse cell, ties to the lower one
             near[:, k] = np.argmax(similarity, axis=1)
             similarity[np.arange(len(block)), near[:, k]] = -np.inf
+        # the (row, coarse cell) pairs grouped by cell, rows in order within each
         pair_row = np.repeat(np.arange(len(block)), nearest)[np.argsort(near.ravel(), kind="stable")]
-        bounds = np.searchsorted(np.sort(near.ravel()), np.arange(len(coarse) + 1))
+        bounds = np.concatenate([[0], np.cumsum(np.bincount(near.ravel(), minlength=len(coarse)))])
         best = np.full(len(block), -np.inf, dtype=np.float32)
         cell = cells[start:start + FILING_BLOCK]
         for group in range(len(coarse)):
