@@ -91,21 +91,19 @@ def test_cache_off_and_a_missing_file(map_files, tmp_path):
 def test_what_is_not_plausibly_a_map_is_refused_with_what_was_read(map_files, tmp_path):
     """A trajectory given as the map, random bytes as a KITTI .bin, and a path of points: each
     gets an error naming the file and what it holds, never a cache file."""
-    from regor_ros.io.map_file import read_map
-    features = RegorConfig.preset("outdoor").features
+    config = RegorConfig.preset("outdoor")
     map_file, trajectory_file, _, _ = map_files
     as_text = tmp_path / "trajectory.txt"
     as_text.write_text(trajectory_file.read_text())
-    with pytest.raises(CloudFileError, match="TUM trajectory"):
-        load_map_file(as_text, RegorConfig.preset("outdoor"))
-    assert not list(tmp_path.glob("*.regor-cache.npz"))
     garbage = tmp_path / "random.bin"
     garbage.write_bytes(np.random.default_rng(0).bytes(100_000))
-    with pytest.raises(CloudFileError, match="NaN, infinite or beyond"):
-        read_map(garbage, features)
     path = tmp_path / "path.npy"
     t = np.linspace(0.0, 60.0, 600)
     np.save(path, np.c_[t, 5 * np.sin(t / 10), np.zeros_like(t)])
-    with pytest.raises(CloudFileError, match="a line gives 6"):
-        read_map(path, features)
-    assert len(read_map(map_file, features)) > 1000
+    for refused, reason in ((as_text, "TUM trajectory"), (garbage, "NaN, infinite or beyond"),
+                            (path, "a line gives 6")):
+        with pytest.raises(CloudFileError, match=reason) as error:
+            load_map_file(refused, config, cache_dir=tmp_path / "cache")
+        assert str(refused) in str(error.value)
+    assert not list(tmp_path.rglob("*.regor-cache.npz"))
+    assert len(load_map_file(map_file, config, cache=False).prepared) > 1000

@@ -14,10 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..core import MAX_ABS_COORDINATE, FeatureConfig, PreparedCloud, RegorConfig, prepare_cloud, to_matrix, unique_rows
+from ..core import MAX_ABS_COORDINATE, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
 from .cloud_io import CloudFileError, read_cloud
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
@@ -68,10 +67,10 @@ def cache_paths(map_file: Path, cache_dir: Path | None) -> list[Path]:
     return aside + [folder / f"{map_file.stem}-{tag}{CACHE_SUFFIX}"]
 
 
-def read_map(map_file: Path, features: FeatureConfig) -> np.ndarray:
-    """The points of a map file, or a CloudFileError saying why it is not plausibly a map of the
-    sensor's world: mostly garbage (random bytes, a wrong format), a trajectory (TUM rows), or
-    points that form no surfaces at the feature scale (a path, scattered noise)."""
+def read_map(map_file: Path) -> np.ndarray:
+    """The points of a map file, or a CloudFileError saying why they are not plausibly a map:
+    mostly garbage (random bytes, a wrong format) or a trajectory (TUM rows). Whether they form
+    surfaces is asked of the prepared map (check_surfaces)."""
     points = read_cloud(map_file)
     sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
     if sane.mean() < MIN_SANE_SHARE:
@@ -80,14 +79,7 @@ def read_map(map_file: Path, features: FeatureConfig) -> np.ndarray:
     if map_file.suffix.lower() in (".txt", ".xyz") and _is_trajectory(map_file):
         raise CloudFileError(f"{map_file}: rows of t x y z qx qy qz qw: a TUM trajectory, not a map "
                              "(give it as map_trajectory_file)")
-    points = points[sane]
-    neighbours, line = _surface_neighbours(points, features)
-    if neighbours <= line:
-        raise CloudFileError(
-            f"{map_file}: {len(points)} points whose keypoints have a median of {neighbours:g} neighbours within "
-            f"features.normal_radius={features.normal_radius} m; a line gives {line:g} and a surface more: not a "
-            "map of surfaces (a path, scattered points, or the wrong units?)")
-    return points
+    return points[sane]
 
 
 def _is_trajectory(path: Path) -> bool:
@@ -98,14 +90,22 @@ def _is_trajectory(path: Path) -> bool:
     return rows.shape[1] == 8 and bool(np.allclose(np.linalg.norm(rows[:, 4:8], axis=1), 1.0, atol=1e-3))
 
 
-def _surface_neighbours(points: np.ndarray, features: FeatureConfig) -> tuple[float, float]:
-    """(median keypoints within the normal radius of a keypoint, what a line sampled at the voxel
-    size has): a normal, and so a feature, needs a surface around the point."""
-    keypoints = points[unique_rows(np.floor(points / features.voxel_size).astype(np.int64))[1]]
+def check_surfaces(prepared: PreparedCloud, map_file: Path) -> None:
+    """A CloudFileError unless the prepared map's keypoints form surfaces at the feature scale: a
+    normal, and so a feature, needs a surface around the keypoint; a path or scattered points
+    have none (nor a map in the wrong units). Asked of the keypoints and their kd-tree, which
+    preparation built anyway."""
+    features = prepared.config
     rng = np.random.default_rng(0)
-    sample = keypoints[rng.choice(len(keypoints), min(SURFACE_SAMPLE, len(keypoints)), replace=False)]
-    counts = cKDTree(keypoints).query_ball_point(sample, features.normal_radius, return_length=True) - 1
-    return float(np.median(counts)), 2.0 * np.floor(features.normal_radius / features.voxel_size)
+    sample = prepared.points[rng.choice(len(prepared), min(SURFACE_SAMPLE, len(prepared)), replace=False)]
+    neighbours = float(np.median(prepared.tree.query_ball_point(sample, features.normal_radius,
+                                                                return_length=True) - 1))
+    line = 2.0 * np.floor(features.normal_radius / features.voxel_size)  # a line sampled at the voxel size
+    if neighbours <= line:
+        raise CloudFileError(
+            f"{map_file}: {prepared.input_size} points whose keypoints have a median of {neighbours:g} neighbours "
+            f"within features.normal_radius={features.normal_radius} m; a line gives {line:g} and a surface more: "
+            "not a map of surfaces (a path, scattered points, or the wrong units?)")
 
 
 @dataclass
@@ -119,7 +119,7 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     """The prepared map of ``map_file`` (any format read_cloud reads), from its cache when one
     matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
     stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
-    CloudFileError for files, and for a file that is not plausibly a map: read_map) with a
+    CloudFileError for files, and for a file that is not plausibly a map: read_map, check_surfaces) with a
     message a user can act on."""
     map_file = Path(map_file).expanduser()
     trajectory_file = Path(trajectory_file).expanduser() if trajectory_file else None
@@ -138,10 +138,11 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
                 continue
             info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
             return MapFromFile(prepared, info)
-    points = read_map(map_file, config.features)
+    points = read_map(map_file)
     trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
     prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
     del points   # the raw map: not needed while the cache is written
+    check_surfaces(prepared, map_file)
     info["map_cache"] = "not written" if cache else "off"
     for path in paths:
         try:
