@@ -3,7 +3,7 @@ import pytest
 from conftest import DATA, moved_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, for_clouds_seen_from, prepare_cloud, register
-from regor_ros.core.features import largest_plane, toward_nearest
+from regor_ros.core.features import largest_plane, map_normals, toward_nearest
 from regor_ros.core.metrics import is_success
 from regor_ros.tools.map_benchmark import load_sequence
 
@@ -88,6 +88,31 @@ def test_normals_are_turned_toward_the_nearest_sensor():
     turned = toward_nearest(normals, points, sensors)
     left = points[:, 0] < 0
     assert (turned[left, 2] == 1.0).all() and (turned[~left, 2] == -1.0).all()
+
+
+def test_a_map_s_compiled_normals_are_open3d_s_facing_its_trajectory():
+    """A map's normals are computed on every core, not by Open3D (one core), but they must stay the
+    normals everything was measured with: Open3D's least spread of the same neighbourhoods, turned
+    toward the nearest trajectory position, to rounding; and a floor seen from above on one side
+    and from below on the other faces both ways."""
+    import open3d as o3d
+    require_shared_data("the Avia map")
+    from regor_ros.core.map_view import trajectory_positions
+    cloud, trajectory, _ = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
+    cfg = RegorConfig.preset("outdoor").features
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud)).voxel_down_sample(cfg.voxel_size)
+    points, sensors = np.asarray(down.points), trajectory_positions(trajectory)
+    ours = map_normals(points, sensors, cfg.normal_radius, cfg.normal_max_nn)
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_radius, max_nn=cfg.normal_max_nn))
+    theirs = toward_nearest(np.asarray(down.normals), points, sensors)
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-12)
+    assert ((ours * theirs).sum(axis=1) > np.cos(np.radians(1e-3))).all()
+    rng = np.random.default_rng(3)
+    floor = np.c_[rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)]
+    faced = map_normals(floor, np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]]), 0.5, 30)
+    left = floor[:, 0] < 0
+    np.testing.assert_allclose(np.abs(faced[:, 2]), 1.0)
+    assert (faced[left, 2] > 0).all() and (faced[~left, 2] < 0).all()
 
 
 def test_a_revisit_seen_from_the_other_way_is_found_once_normals_face_the_sensors():

@@ -1343,6 +1343,92 @@ def _gather_around(cell_at, keys, table, starts, order, ordered, block, block_in
     return m
 
 
+@njit(inline="always")
+def _least_spread(c00, c01, c02, c11, c12, c22, out):
+    """The unit eigenvector of the smallest eigenvalue of the symmetric 3 x 3 matrix with these
+    entries, into ``out``; (0, 0, 1) when the matrix has no preferred direction. The eigenvalue in
+    closed form (the trigonometric solution of the characteristic cubic), the vector as the largest
+    cross product of two rows of the matrix less that eigenvalue (each is perpendicular to it)."""
+    scale = max(abs(c00), abs(c01), abs(c02), abs(c11), abs(c12), abs(c22))
+    out[0], out[1], out[2] = 0.0, 0.0, 1.0
+    if scale == 0.0:
+        return
+    a00, a01, a02, a11, a12, a22 = c00 / scale, c01 / scale, c02 / scale, c11 / scale, c12 / scale, c22 / scale
+    q = (a00 + a11 + a22) / 3.0
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
+    if p == 0.0:
+        return
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / p ** 3
+    phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
+    least = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    r0x, r0y, r0z = a00 - least, a01, a02
+    r1x, r1y, r1z = a01, a11 - least, a12
+    r2x, r2y, r2z = a02, a12, a22 - least
+    best = 0.0
+    for pair in range(3):
+        if pair == 0:
+            ux, uy, uz, vx, vy, vz = r0x, r0y, r0z, r1x, r1y, r1z
+        elif pair == 1:
+            ux, uy, uz, vx, vy, vz = r0x, r0y, r0z, r2x, r2y, r2z
+        else:
+            ux, uy, uz, vx, vy, vz = r1x, r1y, r1z, r2x, r2y, r2z
+        x, y, z = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length2 = x * x + y * y + z * z
+        if length2 > best:
+            best = length2
+            out[0], out[1], out[2] = x, y, z
+    if best > 0.0:
+        length = np.sqrt(best)
+        out[0], out[1], out[2] = out[0] / length, out[1] / length, out[2] / length
+
+
+@njit(parallel=True, **JIT)
+def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, ordered):
+    """(N, 3) unit normals as Open3D estimates them (the direction of least spread of each point
+    with its ``max_nn`` - 1 nearest within ``radius``), each turned to face its row of
+    ``toward`` (a direction to its sensor), on neighbour_grid's grid of cells no smaller than the
+    radius. A point with fewer than two neighbours gets (0, 0, 1), turned. Points are
+    independent: the same normals whatever the threads."""
+    n = len(points)
+    normals = np.empty((n, 3))
+    radius2 = radius * radius
+    most_candidates = _most_around(starts)
+    for cell_at in prange(len(keys)):
+        block = np.empty((3, most_candidates))
+        block_index = np.empty(most_candidates, np.int64)
+        candidate = np.empty(most_candidates, np.int64)
+        candidate_d2 = np.empty(most_candidates)
+        scratch = np.empty(most_candidates)
+        neighbours = np.empty(max(max_nn - 1, 0), np.int64)
+        normal = np.empty(3)
+        m = _gather_around(cell_at, keys, table, starts, order, ordered, block, block_index)
+        for at in range(starts[cell_at], starts[cell_at + 1]):
+            p = order[at]
+            count = _nearest_within(p, ordered[at, 0], ordered[at, 1], ordered[at, 2], block, block_index, m,
+                                    radius2, neighbours, candidate, candidate_d2, scratch)
+            mx, my, mz = points[p, 0], points[p, 1], points[p, 2]
+            for i in range(count):
+                mx, my, mz = mx + points[neighbours[i], 0], my + points[neighbours[i], 1], mz + points[neighbours[i], 2]
+            mx, my, mz = mx / (count + 1), my / (count + 1), mz / (count + 1)
+            dx, dy, dz = points[p, 0] - mx, points[p, 1] - my, points[p, 2] - mz
+            c00, c01, c02, c11, c12, c22 = dx * dx, dx * dy, dx * dz, dy * dy, dy * dz, dz * dz
+            for i in range(count):
+                q = neighbours[i]
+                dx, dy, dz = points[q, 0] - mx, points[q, 1] - my, points[q, 2] - mz
+                c00, c01, c02 = c00 + dx * dx, c01 + dx * dy, c02 + dx * dz
+                c11, c12, c22 = c11 + dy * dy, c12 + dy * dz, c22 + dz * dz
+            if count >= 2:
+                _least_spread(c00, c01, c02, c11, c12, c22, normal)
+            else:
+                normal[0], normal[1], normal[2] = 0.0, 0.0, 1.0
+            flip = normal[0] * toward[p, 0] + normal[1] * toward[p, 1] + normal[2] * toward[p, 2] < 0.0
+            for a in range(3):
+                normals[p, a] = -normal[a] if flip else normal[a]
+    return normals
+
+
 @njit(parallel=True, **JIT)
 def fpfh_features(points, normals, radius, max_nn, keys, table, starts, order, ordered):
     """(N, 33) FPFH (features.fpfh) of every point, its neighbours the ``max_nn`` - 1 nearest
@@ -1437,3 +1523,5 @@ def warm_up() -> None:
         normals = np.tile([0.0, 0.0, 1.0], (2, 1))
         fpfh_features(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
                       np.arange(2, dtype=np.int64), points[:2].copy())
+        surface_normals(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
+                        np.arange(2, dtype=np.int64), points[:2].copy())
