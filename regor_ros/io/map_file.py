@@ -119,8 +119,8 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     """The prepared map of ``map_file`` (any format read_cloud reads), from its cache when one
     matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
     stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
-    CloudFileError for files, and for a file that is not plausibly a map: read_map, check_surfaces) with a
-    message a user can act on."""
+    CloudFileError for files, and for a file that is not plausibly a map: read_map,
+    check_surfaces) with a message a user can act on."""
     map_file = Path(map_file).expanduser()
     trajectory_file = Path(trajectory_file).expanduser() if trajectory_file else None
     for path in (map_file, trajectory_file):
