@@ -58,3 +58,16 @@ def test_a_map_wide_grid_flags_its_cells_a_bit_each():
     queries = np.vstack([points[:2000] + rng.normal(scale=0.3, size=(2000, 3)), rng.random((2000, 3)) * 700.0])
     assert _as_kd_tree(points, queries, 0.6).sum() > 1000
     assert NeighbourGrid(points).cells(0.6).occupied.nbytes < 7e6
+
+
+def test_a_grid_too_wide_for_a_bit_per_cell_flags_blocks_of_cells():
+    """A map a few kilometres wide at the finest threshold spans billions of cells: a bit then
+    flags a block of cells, and the answers stay the kd-tree's, near its surfaces and off them."""
+    rng = np.random.default_rng(7)
+    ground = rng.random((20000, 3)) * [3000.0, 2000.0, 0.3]
+    wall = rng.random((5000, 3)) * [0.3, 40.0, 20.0] + [1500.0, 1000.0, 0.0]
+    points = np.vstack([ground, wall])
+    queries = np.vstack([points[::5] + rng.normal(scale=0.2, size=(5000, 3)), rng.random((2000, 3)) * 3000.0])
+    cells = NeighbourGrid(points).cells(0.3)
+    assert cells.shift > 0 and cells.occupied.nbytes <= (1 << 28) // 8
+    assert _as_kd_tree(points, queries, 0.3).sum() > 1000

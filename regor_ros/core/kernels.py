@@ -1022,11 +1022,18 @@ def flag_bits(indices, count):
 
 
 @njit(inline="always")
-def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask, occupied, span):
+def _block_flagged(occupied, span, a, b, c):
+    """Whether block (a, b, c) of the ``span`` is flagged occupied (False outside the span)."""
+    return a < span[0] and b < span[1] and c < span[2] and _flagged(occupied, (a * span[1] + b) * span[2] + c)
+
+
+@njit(inline="always")
+def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, order, ordered, mask, occupied, span,
+                      shift):
     """The nearest point within ``threshold`` of (qx, qy, qz): (squared distance, index), or
     (threshold squared, len(order)) when none is (grid_nearest says how). ``occupied`` (a bit
-    per cell over the ``span`` of cells, flag_bits, or empty) answers for an empty cell without
-    the table."""
+    per block of 2**shift cells a side over the ``span`` of blocks, flag_bits, or empty) answers
+    for a cell in an empty block without the table."""
     n = len(order)
     best, found = threshold * threshold, n
     x = (qx - origin[0]) / cell
@@ -1050,8 +1057,7 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
                     gc = _gap(z, c, cz, cell)
                     if ga * ga + gb * gb + gc * gc > best:
                         continue
-                    if len(occupied) and (a >= span[0] or b >= span[1] or c >= span[2]
-                                          or not _flagged(occupied, (a * span[1] + b) * span[2] + c)):
+                    if len(occupied) and not _block_flagged(occupied, span, a >> shift, b >> shift, c >> shift):
                         continue
                     k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
                     if k < 0:
@@ -1067,7 +1073,7 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
 
 
 @njit(parallel=True, **JIT)
-def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered, occupied, span):
+def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, ordered, occupied, span, shift):
     """Each query's nearest point within ``threshold`` (neighbour_grid.NeighbourGrid): the
     query's cell, then the 26 around it (cells are never smaller than the threshold, so these hold
     every point within it), a cell skipped when its nearest face is farther than the best found
@@ -1078,7 +1084,7 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
     index = np.full(m, n, np.int64)
     for q in prange(m):
         best, found = _grid_nearest_one(queries[q, 0], queries[q, 1], queries[q, 2], origin, cell, threshold,
-                                        keys, table, starts, order, ordered, mask, occupied, span)
+                                        keys, table, starts, order, ordered, mask, occupied, span, shift)
         if found < n and best < threshold * threshold:
             distance[q], index[q] = np.sqrt(best), found
     return distance, index
@@ -1086,7 +1092,7 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
 
 @njit(parallel=True, **JIT)
 def grid_pairs_moments(rotations, translations, queries, points, origin, cell, threshold, keys, table, starts,
-                       order, ordered, occupied, span):
+                       order, ordered, occupied, span, shift):
     """One step of the point-level refinement for each of a batch of poses, in one pass: the
     queries moved by each pose (``rotations`` (b, 3, 3), ``translations`` (b, 3)), each one's
     nearest of ``points`` within ``threshold`` (as grid_nearest), and the Cauchy-weighted moments
@@ -1106,7 +1112,7 @@ def grid_pairs_moments(rotations, translations, queries, points, origin, cell, t
         my = R[1, 0] * queries[q, 0] + R[1, 1] * queries[q, 1] + R[1, 2] * queries[q, 2] + t[1]
         mz = R[2, 0] * queries[q, 0] + R[2, 1] * queries[q, 1] + R[2, 2] * queries[q, 2] + t[2]
         best, found = _grid_nearest_one(mx, my, mz, origin, cell, threshold, keys, table, starts, order, ordered,
-                                        mask, occupied, span)
+                                        mask, occupied, span, shift)
         if found < n and best < threshold * threshold:
             distance[s, q], index[s, q] = np.sqrt(best), found
     count = np.zeros(b, np.int64)
@@ -1514,7 +1520,7 @@ def warm_up() -> None:
         pooled_counts(np.arange(3, dtype=np.int64), np.arange(4, dtype=np.int64), np.arange(2, dtype=np.int64))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid = (keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(),
-                flag_bits(np.zeros(1, np.int64), 1), np.ones(3, np.int64))
+                flag_bits(np.zeros(1, np.int64), 1), np.ones(3, np.int64), 0)
         grid_nearest(points, np.zeros(3), 0.1, 0.1, *grid)
         grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1, *grid)
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)

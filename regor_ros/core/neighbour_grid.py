@@ -5,9 +5,9 @@ within a small threshold (tau_e and its halves). A kd-tree answers any radius; a
 cells the threshold's size answers this one by looking in the query's cell and the 26 around it,
 its own first, skipping a cell that cannot hold anything nearer than what was found: the same
 nearest keypoints as the kd-tree, sooner. A grid is built the first time a threshold is asked for
-and kept, so a map pays for it once. A grid also flags its occupied cells, a bit each (a scan's
-grids, and a map's at all but its finest thresholds): a query off the surfaces (most of a
-rival's) then skips its empty neighbours for a read each.
+and kept, so a map pays for it once. A grid also flags its occupied cells, a bit each (or a bit
+per block of cells in a box too large for that): a query off the surfaces (most of a rival's)
+then skips its empty neighbours for a read each.
 """
 from __future__ import annotations
 
@@ -32,7 +32,8 @@ class PairMoments(NamedTuple):
     cross_covariance: np.ndarray    # (b, 3, 3) sum of w (query - its centroid)(nearest - its centroid)^T
 
 
-DENSE_CELLS = 1 << 28  # a grid spanning at most this many cells also flags its occupied ones, a bit each (32 MB)
+OCCUPANCY_BITS = 1 << 28  # a grid flags its occupied cells in at most this many bits (32 MB) ...
+OCCUPANCY_MAX_SHIFT = 3   # ... a bit per block of up to 8 x 8 x 8 cells; beyond that, none
 
 
 class Cells(NamedTuple):
@@ -45,8 +46,9 @@ class Cells(NamedTuple):
     starts: np.ndarray     # each occupied cell's first point in order, and the end
     order: np.ndarray      # the points' indices, sorted by cell
     ordered: np.ndarray    # the points in that order
-    occupied: np.ndarray   # a bit per cell of the span (x, y, z order; uint64 words), or empty when it is too large
-    span: np.ndarray       # (3,) cells along each axis
+    occupied: np.ndarray   # a bit per block of the span (x, y, z order; uint64 words), or empty when it is too large
+    span: np.ndarray       # (3,) blocks along each axis
+    shift: int             # a block is 2**shift cells a side
 
 
 class NeighbourGrid:
@@ -92,10 +94,11 @@ class NeighbourGrid:
         """Cells of the threshold's size (larger when the cloud spans more cells than the packed
         key holds: each then holds more points), the points sorted by cell, and an
         open-addressing table from a cell's key to its run of points. A query off the surfaces
-        (a wrong pose's, a rival's) finds most of its 27 cells empty: flagged a bit per cell, an
-        empty cell costs one read instead of a hashed probe (17 probes a query, 1.1 of them
-        occupied, on a 3DMatch pair's refinements), on a map's grids too (a 1.1 km map at the
-        0.6 m threshold: 193 M cells, 24 MB)."""
+        (a wrong pose's, a rival's) finds most of its 27 cells empty: a bit per cell flags the
+        occupied ones, so an empty cell costs one read instead of a hashed probe. Where the
+        cloud's box spans more cells than OCCUPANCY_BITS (a map a kilometre wide at the finest
+        threshold), a bit flags a block of 2, 4 or 8 cells a side instead: an empty block still
+        answers for its cells, and a block as large as a building's facade no longer would."""
         origin, top = column_bounds(self.points)
         extent = float((top - origin).max())
         cell = max(threshold, extent / (2 ** kernels.GRID_AXIS_BITS - 2), 1e-9)
@@ -105,10 +108,15 @@ class NeighbourGrid:
         keys, starts = np.unique(packed[order], return_index=True)
         starts = np.append(starts, len(order)).astype(np.int64)
         table = kernels.grid_table(keys)
-        span = column_bounds(coordinates)[1] + 1
-        spanned = float(np.prod(span.astype(float)))   # in floats: a UTM-wide span overflows int64
-        occupied = np.zeros(0, dtype=np.uint64)
-        if spanned <= DENSE_CELLS:
-            flat = (coordinates[:, 0] * span[1] + coordinates[:, 1]) * span[2] + coordinates[:, 2]
-            occupied = kernels.flag_bits(flat, int(spanned))
-        return Cells(origin, cell, keys, table, starts, order, np.ascontiguousarray(self.points[order]), occupied, span)
+        top_cell = column_bounds(coordinates)[1]
+        occupied, span, shift = np.zeros(0, dtype=np.uint64), np.ones(3, dtype=np.int64), 0
+        for blocked in range(OCCUPANCY_MAX_SHIFT + 1):
+            blocks = (top_cell >> blocked) + 1
+            spanned = float(np.prod(blocks.astype(float)))   # in floats: a UTM-wide span overflows int64
+            if spanned <= OCCUPANCY_BITS:
+                block = coordinates >> blocked
+                flat = (block[:, 0] * blocks[1] + block[:, 1]) * blocks[2] + block[:, 2]
+                occupied, span, shift = kernels.flag_bits(flat, int(spanned)), blocks, blocked
+                break
+        return Cells(origin, cell, keys, table, starts, order, np.ascontiguousarray(self.points[order]), occupied, span,
+                     shift)
