@@ -79,6 +79,21 @@ def test_independent_matches_are_one_per_descriptor_radius():
     assert distances[~np.eye(len(kept), dtype=bool)].min() >= 1.0
 
 
+@pytest.mark.parametrize("radius", [0.3, 1.0, 2.5])
+def test_independent_keeps_the_first_point_of_each_cell_the_greedy_rule_leaves(radius):
+    """The rule written out: the first point of each cell of the radius, in the points' order,
+    kept unless within the radius of one kept before it (dense and sparse parts, far offsets)."""
+    rng = np.random.default_rng(1)
+    points = np.vstack([rng.uniform(0, 6, (800, 3)), rng.uniform(0, 60, (400, 3))]) + [4.0e5, -2.0e5, 30.0]
+    cells = np.floor(points / radius).astype(np.int64)
+    firsts = sorted({tuple(c): i for i, c in reversed(list(enumerate(cells)))}.values())
+    expected = []
+    for i in firsts:
+        if all(np.sum((points[i] - points[k]) ** 2) > radius * radius for k in expected):
+            expected.append(i)
+    np.testing.assert_array_equal(independent(points, radius), expected)
+
+
 def test_false_alarms_grow_with_the_matches_the_chance_and_the_hypotheses_tried():
     base = log10_false_alarms(8, 200, 1e-3, 1000)
     assert base < 0   # 8 agreeing where 0.2 are expected: not chance

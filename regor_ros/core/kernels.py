@@ -543,6 +543,49 @@ def splatted_free_depth(index, ranges, width, rows, cols, blur):
     return free
 
 
+@njit(inline="always")
+def _row_at(rows, a, b, c):
+    """The position of row (a, b, c) in ``rows`` (lexicographically sorted, unique), -1 if absent."""
+    lo, hi = 0, len(rows)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        r = rows[mid]
+        if r[0] < a or (r[0] == a and (r[1] < b or (r[1] == b and r[2] < c))):
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < len(rows) and rows[lo, 0] == a and rows[lo, 1] == b and rows[lo, 2] == c:
+        return lo
+    return -1
+
+
+@njit(**JIT)
+def greedy_apart(points, cells, visit, radius):
+    """gate/evidence.independent's greedy rule on one point per cell of the radius: ``points``
+    and their ``cells`` (lexicographically sorted, unique), taken in the order ``visit``; each
+    point not yet within ``radius`` of a kept one is kept, and every point within it of that one
+    is taken (squared distances summed x, y, z, as scipy's ball query). Another point of a cell's
+    27 neighbours is the only one that can be that near. Which points are kept (bool)."""
+    n = len(points)
+    kept = np.zeros(n, np.bool_)
+    taken = np.zeros(n, np.bool_)
+    limit = radius * radius
+    for i in visit:
+        if taken[i]:
+            continue
+        kept[i] = True
+        for a in range(cells[i, 0] - 1, cells[i, 0] + 2):
+            for b in range(cells[i, 1] - 1, cells[i, 1] + 2):
+                for c in range(cells[i, 2] - 1, cells[i, 2] + 2):
+                    j = _row_at(cells, a, b, c)
+                    if j < 0:
+                        continue
+                    dx, dy, dz = points[j, 0] - points[i, 0], points[j, 1] - points[i, 1], points[j, 2] - points[i, 2]
+                    if dx * dx + dy * dy + dz * dz <= limit:
+                        taken[j] = True
+    return kept
+
+
 @njit(parallel=True, **JIT)
 def within_any(points, centres, radii):
     """Mask of the points within ``radii[k]`` of some ``centres[k]`` (squared distances summed x,
@@ -1517,6 +1560,7 @@ def warm_up() -> None:
         free_space_classes(points, np.zeros(3), np.ones((4, 8), np.float32), 0.01, 1e-3, 0.1, 0.01, np.zeros(8))
         splatted_free_depth(np.arange(3, dtype=np.int64), np.ones(3, np.float32), np.ones(3, np.int64), 2, 4, 0)
         within_any(points, points[:2], np.ones(2))
+        greedy_apart(points[:2].copy(), np.zeros((2, 3), np.int64), np.arange(2, dtype=np.int64), 0.1)
         pooled_counts(np.arange(3, dtype=np.int64), np.arange(4, dtype=np.int64), np.arange(2, dtype=np.int64))
         keys = np.unique(grid_keys(np.zeros((2, 3), np.int64)))
         grid = (keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(),

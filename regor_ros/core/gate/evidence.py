@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 
+from .. import kernels
 from ..geometry import transform_points, unique_rows
 
 DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
@@ -75,19 +76,13 @@ def independent(points: np.ndarray, radius: float) -> np.ndarray:
     per descriptor neighbourhood."""
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
-    cell = np.floor(points / radius).astype(np.int64)
-    # one representative per cell of the radius, then the greedy rule among representatives
-    first = unique_rows(cell)[1]
-    first.sort()
-    candidates = points[first]
-    tree = cKDTree(candidates)
-    taken = np.zeros(len(candidates), dtype=bool)
-    keep = []
-    for i in range(len(candidates)):
-        if not taken[i]:
-            keep.append(i)
-            taken[tree.query_ball_point(candidates[i], radius)] = True
-    return first[np.array(keep, dtype=np.int64)]
+    # one representative per cell of the radius (the cells in lexicographic order), then the
+    # greedy rule among representatives, in the order of the points
+    cells, first = unique_rows(np.floor(points / radius).astype(np.int64))
+    visit = np.argsort(first, kind="stable")
+    kept = kernels.greedy_apart(np.ascontiguousarray(points[first], dtype=np.float64), np.ascontiguousarray(cells),
+                                visit, float(radius))
+    return np.sort(first[kept])
 
 
 def chance_of_agreement(points: np.ndarray, tree: cKDTree, tolerance: float) -> float:
