@@ -7,11 +7,15 @@ from regor_ros.core.neighbour_grid import NeighbourGrid
 
 
 def _as_kd_tree(points, queries, threshold, dense=True):
-    """The grid answers as the kd-tree, its empty cells flagged densely or (a wide cloud) not."""
+    """The grid answers as the kd-tree, its empty cells flagged densely or (a wide cloud) not:
+    the nearest point within the threshold, and how many lie within it."""
     grid = NeighbourGrid(points)
     grid_distance, grid_index = grid.nearest_within(queries, threshold)
     assert (len(grid.cells(threshold).occupied) > 0) == dense
-    tree_distance, tree_index = cKDTree(points).query(queries, distance_upper_bound=threshold)
+    tree = cKDTree(points)
+    np.testing.assert_array_equal(grid.count_within(queries, threshold),
+                                  tree.query_ball_point(queries, threshold, return_length=True))
+    tree_distance, tree_index = tree.query(queries, distance_upper_bound=threshold)
     found = np.isfinite(tree_distance)
     np.testing.assert_array_equal(np.isfinite(grid_distance), found)
     np.testing.assert_array_equal(grid_distance[found], tree_distance[found])
@@ -46,6 +50,7 @@ def test_a_threshold_asked_again_reuses_its_grid_and_an_empty_cloud_finds_nothin
     assert grid._grids[0.2] is built
     distance, index = NeighbourGrid(np.zeros((0, 3))).nearest_within(np.zeros((2, 3)), 0.2)
     assert np.isinf(distance).all() and (index == 0).all()
+    assert (NeighbourGrid(np.zeros((0, 3))).count_within(np.zeros((2, 3)), 0.2) == 0).all()
     moments = NeighbourGrid(np.zeros((0, 3))).pair_moments(np.tile(np.eye(4), (3, 1, 1)), np.zeros((2, 3)), 0.2)
     assert moments.distance.shape == (3, 2) and np.isinf(moments.distance).all() and (moments.paired == 0).all()
 

@@ -1134,6 +1134,42 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
 
 
 @njit(parallel=True, **JIT)
+def grid_count_within(queries, origin, cell, threshold, keys, table, starts, order, ordered, occupied, span, shift):
+    """How many points lie within ``threshold`` of each query (at most, as scipy's ball query
+    counts, squared distances summed x, y, z): the query's cell and the 26 around it, an empty
+    or too distant one skipped (neighbour_grid.NeighbourGrid; grid_nearest's cells)."""
+    mask = np.int64(len(table) - 1)
+    limit = threshold * threshold
+    counts = np.zeros(len(queries), np.int64)
+    for q in prange(len(queries)):
+        qx, qy, qz = queries[q, 0], queries[q, 1], queries[q, 2]
+        x, y, z = (qx - origin[0]) / cell, (qy - origin[1]) / cell, (qz - origin[2]) / cell
+        if not (-2 < x < _GRID_LIMIT + 2 and -2 < y < _GRID_LIMIT + 2 and -2 < z < _GRID_LIMIT + 2):
+            continue
+        cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
+        for a in range(max(cx - 1, 0), min(cx + 1, _GRID_LIMIT) + 1):
+            ga = _gap(x, a, cx, cell)
+            for b in range(max(cy - 1, 0), min(cy + 1, _GRID_LIMIT) + 1):
+                gb = _gap(y, b, cy, cell)
+                for c in range(max(cz - 1, 0), min(cz + 1, _GRID_LIMIT) + 1):
+                    gc = _gap(z, c, cz, cell)
+                    if ga * ga + gb * gb + gc * gc > limit:
+                        continue
+                    if len(occupied) and not _block_flagged(occupied, span, a >> shift, b >> shift, c >> shift):
+                        continue
+                    k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
+                    if k < 0:
+                        continue
+                    for p in range(starts[k], starts[k + 1]):
+                        dx = ordered[p, 0] - qx
+                        dy = ordered[p, 1] - qy
+                        dz = ordered[p, 2] - qz
+                        if dx * dx + dy * dy + dz * dz <= limit:
+                            counts[q] += 1
+    return counts
+
+
+@njit(parallel=True, **JIT)
 def grid_pairs_moments(rotations, translations, queries, points, origin, cell, threshold, keys, table, starts,
                        order, ordered, occupied, span, shift):
     """One step of the point-level refinement for each of a batch of poses, in one pass: the
@@ -1566,6 +1602,7 @@ def warm_up() -> None:
         grid = (keys, grid_table(keys), np.array([0, 2], np.int64), np.arange(2, dtype=np.int64), points[:2].copy(),
                 flag_bits(np.zeros(1, np.int64), 1), np.ones(3, np.int64), 0)
         grid_nearest(points, np.zeros(3), 0.1, 0.1, *grid)
+        grid_count_within(points, np.zeros(3), 0.1, 0.1, *grid)
         grid_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points[:2].copy(), np.zeros(3), 0.1, 0.1, *grid)
         flat_search(np.zeros((2, 4), np.float32), np.zeros((3, 4), np.float32), np.array([0, -1], np.int64), 2, True, 2)
         cell_top_k(np.zeros((2, 4), np.float32), np.zeros((2, 1), np.int64), np.zeros((3, 4), np.float32),

@@ -68,6 +68,15 @@ class NeighbourGrid:
         origin, cell, *grid = self.cells(float(threshold))
         return kernels.grid_nearest(queries, origin, cell, float(threshold), *grid)
 
+    def count_within(self, queries: np.ndarray, threshold: float) -> np.ndarray:
+        """How many points lie within ``threshold`` of each query, as scipy's kd-tree counts them
+        (``query_ball_point(..., return_length=True)``)."""
+        queries = np.ascontiguousarray(queries, dtype=np.float64)
+        if len(self.points) == 0:
+            return np.zeros(len(queries), dtype=np.int64)
+        origin, cell, *grid = self.cells(float(threshold))
+        return kernels.grid_count_within(queries, origin, cell, float(threshold), *grid)
+
     def pair_moments(self, poses: np.ndarray, queries: np.ndarray, threshold: float) -> PairMoments:
         """The queries moved by each of ``poses`` (b, 4, 4) paired with their nearest points within
         ``threshold``, and the pairs' moments, in one compiled pass (the refinement's numpy glue

@@ -27,11 +27,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.special import betainc
 
 from .. import kernels
 from ..geometry import transform_points, unique_rows
+from ..neighbour_grid import NeighbourGrid
 
 DENSITY_SAMPLE = 2000  # target keypoints whose neighbourhoods estimate the chance of agreement
 DENSITY_SEED = 0
@@ -85,13 +85,12 @@ def independent(points: np.ndarray, radius: float) -> np.ndarray:
     return np.sort(first[kept])
 
 
-def chance_of_agreement(points: np.ndarray, tree: cKDTree, tolerance: float) -> float:
+def chance_of_agreement(points: np.ndarray, neighbours: NeighbourGrid, tolerance: float) -> float:
     """Probability that a random keypoint of this cloud lies within ``tolerance`` of a given one
     of them: the mean neighbour count over a seeded sample, over the cloud's size."""
     rng = np.random.default_rng(DENSITY_SEED)
     sample = points[rng.choice(len(points), min(DENSITY_SAMPLE, len(points)), replace=False)]
-    counts = tree.query_ball_point(sample, tolerance, return_length=True)
-    return float(np.mean(counts)) / len(points)
+    return float(np.mean(neighbours.count_within(sample, tolerance))) / len(points)
 
 
 def log10_false_alarms(agreeing: int, trials: int, chance: float, tests: int) -> float:
@@ -116,7 +115,7 @@ def log10_binomial_tail(at_least: int, trials: int, p: float) -> float:
 
 
 def evidence(T: np.ndarray, overlap: tuple[np.ndarray, np.ndarray, np.ndarray], target_points: np.ndarray,
-             target_tree: cKDTree, match_source: np.ndarray, agree: np.ndarray, resolution: float,
+             target_neighbours: NeighbourGrid, match_source: np.ndarray, agree: np.ndarray, resolution: float,
              match_tolerance: float, descriptor_radius: float, hypotheses: int) -> Evidence:
     """The figures of the pose ``T``: ``overlap`` its (source keypoints, target keypoints, their
     normals) paired within tau_e; ``match_source`` the feature matches' source keypoints,
@@ -125,6 +124,6 @@ def evidence(T: np.ndarray, overlap: tuple[np.ndarray, np.ndarray, np.ndarray], 
     agreement = surface_agreement(T, *overlap, resolution)
     matches = independent(match_source, descriptor_radius)
     agreeing = independent(match_source[agree], descriptor_radius)
-    chance = chance_of_agreement(target_points, target_tree, match_tolerance)
+    chance = chance_of_agreement(target_points, target_neighbours, match_tolerance)
     return Evidence(agreement, len(overlap[0]), len(matches), len(agreeing), chance,
                     log10_false_alarms(len(agreeing), len(matches), chance, hypotheses))

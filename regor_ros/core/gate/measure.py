@@ -55,7 +55,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
     final_source, final_target = source.points[refined.source_index], target.points[refined.target_index]
     overlap = (final_source, final_target, target.normals[refined.target_index])
     support = evidence(T, overlap, target.points,
-                       target.tree, match_source, agree, voxel, config.initial.inlier_threshold,
+                       target.neighbours, match_source, agree, voxel, config.initial.inlier_threshold,
                        config.features.fpfh_radius, hypotheses)
     visibility = visibility_figures(T, source, target, config.acceptance, refined.target_index, uncertainty)
     slide_support = weakest_support(T, overlap, voxel, config.features.fpfh_radius)[0]
