@@ -105,7 +105,7 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
 
 def _toward_nearest_sensor(points: np.ndarray, sensors: np.ndarray) -> np.ndarray:
     """(N, 3) from each point to the nearest of the sensor positions."""
-    nearest = sensors[0] if len(sensors) == 1 else sensors[cKDTree(sensors).query(points)[1]]
+    nearest = sensors[0] if len(sensors) == 1 else sensors[cKDTree(sensors).query(points, workers=kernels.threads())[1]]
     return nearest - points
 
 

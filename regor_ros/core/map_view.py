@@ -75,7 +75,7 @@ class MapView:
         """Per point: whether the map's surface lies within ``tolerance`` [m] of it."""
         if not len(points):
             return np.zeros(0, dtype=bool)
-        distance, _ = self.surface_tree.query(points, distance_upper_bound=tolerance)
+        distance, _ = self.surface_tree.query(points, distance_upper_bound=tolerance, workers=kernels.threads())
         return distance <= tolerance
 
     def image(self, position: np.ndarray, reach: float, blur: int = 0) -> RangeImage:

@@ -33,8 +33,8 @@ def local_matches(seed_src: np.ndarray, seed_tgt: np.ndarray, source: PreparedCl
                   target: PreparedCloud, k: int, gmm_k: int) -> LocalMatches:
     """Group the k nearest keypoints around each seed on both sides and match them by GMM."""
     s = len(seed_src)
-    _, near_p = source.tree.query(seed_src, k=k)
-    _, near_q = target.tree.query(seed_tgt, k=k)
+    _, near_p = source.tree.query(seed_src, k=k, workers=kernels.threads())
+    _, near_q = target.tree.query(seed_tgt, k=k, workers=kernels.threads())
     near_p, near_q = near_p.reshape(s, k), near_q.reshape(s, k)
     similarity = source.features[near_p] @ np.swapaxes(target.features[near_q], 1, 2)
     rows, cols, count = generalized_mutual_matches(similarity, min(gmm_k, k))

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .. import kernels
 from ..geometry import transform_points
 from .evidence import independent, on_surface
 
@@ -32,7 +33,7 @@ def weakest_support(T: np.ndarray, overlap: tuple, resolution: float, radius: fl
         return 0.0, np.zeros(3)
     points, normals = placed[on], overlap_normals[on]
     centres = points[independent(points, radius)]
-    cell = cKDTree(centres).query(points)[1]
+    cell = cKDTree(centres).query(points, workers=kernels.threads())[1]
     weight = 1.0 / np.bincount(cell, minlength=len(centres))[cell]   # each neighbourhood weighs one
     eigenvalues, eigenvectors = np.linalg.eigh((normals * weight[:, None]).T @ normals)
     return float(max(eigenvalues[0], 0.0)), eigenvectors[:, 0]

@@ -161,7 +161,7 @@ def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
     """For each point, the nearest of the viewpoints (the sensor that saw it, most likely)."""
     if len(viewpoints) == 1:
         return viewpoints[0]
-    return viewpoints[cKDTree(viewpoints).query(points)[1]]
+    return viewpoints[cKDTree(viewpoints).query(points, workers=kernels.threads())[1]]
 
 
 def free_space_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, acceptance: AcceptanceConfig,
