@@ -1100,9 +1100,7 @@ def _grid_nearest_one(qx, qy, qz, origin, cell, threshold, keys, table, starts, 
                     gc = _gap(z, c, cz, cell)
                     if ga * ga + gb * gb + gc * gc > best:
                         continue
-                    if len(occupied) and not _block_flagged(occupied, span, a >> shift, b >> shift, c >> shift):
-                        continue
-                    k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
+                    k = _stored_cell(a, b, c, keys, table, mask, occupied, span, shift)
                     if k < 0:
                         continue
                     for p in range(starts[k], starts[k + 1]):
@@ -1133,40 +1131,52 @@ def grid_nearest(queries, origin, cell, threshold, keys, table, starts, order, o
     return distance, index
 
 
+@njit(inline="always")
+def _stored_cell(a, b, c, keys, table, mask, occupied, span, shift):
+    """The position of cell (a, b, c) among a grid's occupied cells, -1 when it holds no points
+    (its block unflagged, or not in the table)."""
+    if len(occupied) and not _block_flagged(occupied, span, a >> shift, b >> shift, c >> shift):
+        return -1
+    return _cell_of(_pack_cell(a, b, c), keys, table, mask)
+
+
+@njit(inline="always")
+def _cell_range(x, origin, cell, threshold):
+    """The cells along one axis that the interval ``x`` +- ``threshold`` touches, inside the grid."""
+    return max(int(np.floor((x - threshold - origin) / cell)), 0), \
+        min(int(np.floor((x + threshold - origin) / cell)), _GRID_LIMIT)
+
+
 @njit(parallel=True, **JIT)
 def grid_count_within(queries, origin, cell, threshold, keys, table, starts, order, ordered, occupied, span, shift):
     """How many points lie within ``threshold`` of each query (at most, as scipy's ball query
-    counts, squared distances summed x, y, z): the query's cell and the 26 around it, an empty
-    or too distant one skipped (neighbour_grid.NeighbourGrid; grid_nearest's cells)."""
+    counts, squared distances summed x, y, z): every cell the box of the threshold around it
+    touches (neighbour_grid.NeighbourGrid; grid_nearest's cells)."""
     mask = np.int64(len(table) - 1)
     limit = threshold * threshold
     counts = np.zeros(len(queries), np.int64)
     for q in prange(len(queries)):
         qx, qy, qz = queries[q, 0], queries[q, 1], queries[q, 2]
-        x, y, z = (qx - origin[0]) / cell, (qy - origin[1]) / cell, (qz - origin[2]) / cell
-        if not (-2 < x < _GRID_LIMIT + 2 and -2 < y < _GRID_LIMIT + 2 and -2 < z < _GRID_LIMIT + 2):
-            continue
-        cx, cy, cz = int(np.floor(x)), int(np.floor(y)), int(np.floor(z))
-        for a in range(max(cx - 1, 0), min(cx + 1, _GRID_LIMIT) + 1):
-            ga = _gap(x, a, cx, cell)
-            for b in range(max(cy - 1, 0), min(cy + 1, _GRID_LIMIT) + 1):
-                gb = _gap(y, b, cy, cell)
-                for c in range(max(cz - 1, 0), min(cz + 1, _GRID_LIMIT) + 1):
-                    gc = _gap(z, c, cz, cell)
-                    if ga * ga + gb * gb + gc * gc > limit:
-                        continue
-                    if len(occupied) and not _block_flagged(occupied, span, a >> shift, b >> shift, c >> shift):
-                        continue
-                    k = _cell_of(_pack_cell(a, b, c), keys, table, mask)
-                    if k < 0:
-                        continue
-                    for p in range(starts[k], starts[k + 1]):
-                        dx = ordered[p, 0] - qx
-                        dy = ordered[p, 1] - qy
-                        dz = ordered[p, 2] - qz
-                        if dx * dx + dy * dy + dz * dz <= limit:
-                            counts[q] += 1
+        a0, a1 = _cell_range(qx, origin[0], cell, threshold)
+        b0, b1 = _cell_range(qy, origin[1], cell, threshold)
+        c0, c1 = _cell_range(qz, origin[2], cell, threshold)
+        for a in range(a0, a1 + 1):
+            for b in range(b0, b1 + 1):
+                for c in range(c0, c1 + 1):
+                    k = _stored_cell(a, b, c, keys, table, mask, occupied, span, shift)
+                    if k >= 0:
+                        counts[q] += _count_near(ordered, starts[k], starts[k + 1], qx, qy, qz, limit)
     return counts
+
+
+@njit(inline="always")
+def _count_near(ordered, first, last, x, y, z, limit):
+    """How many of ``ordered[first:last]`` lie within squared distance ``limit`` of (x, y, z)."""
+    count = 0
+    for p in range(first, last):
+        dx, dy, dz = ordered[p, 0] - x, ordered[p, 1] - y, ordered[p, 2] - z
+        count += dx * dx + dy * dy + dz * dz <= limit
+    return count
 
 
 @njit(parallel=True, **JIT)
