@@ -16,6 +16,7 @@ from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .neighbour_grid import NeighbourGrid
 from .shake import seen_views
+from .viewpoint import nearest_viewpoint
 
 if TYPE_CHECKING:
     from .gate.judge import Rules
@@ -99,14 +100,8 @@ def toward_nearest(normals: np.ndarray, points: np.ndarray, sensors: np.ndarray)
     in two clouds whose frames are turned apart gets opposite signs about as often as not, and
     FPFH's angles change with the signs, so its histograms do not match (PCL turns normals toward
     the viewpoint by default)."""
-    toward = _toward_nearest_sensor(points, sensors)
+    toward = nearest_viewpoint(sensors, points) - points
     return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
-
-
-def _toward_nearest_sensor(points: np.ndarray, sensors: np.ndarray) -> np.ndarray:
-    """(N, 3) from each point to the nearest of the sensor positions."""
-    nearest = sensors[0] if len(sensors) == 1 else sensors[cKDTree(sensors).query(points, workers=kernels.threads())[1]]
-    return nearest - points
 
 
 def map_normals(points: np.ndarray, sensors: np.ndarray, radius: float, max_nn: int) -> np.ndarray:
@@ -115,7 +110,7 @@ def map_normals(points: np.ndarray, sensors: np.ndarray, radius: float, max_nn: 
     every core where Open3D's run on one and hold the interpreter lock (seconds on a map of a
     million points). A scan's stay Open3D's: they take milliseconds, and the same compiled normals
     on scans moved a verdict at the gate's edge (results/speed_77)."""
-    toward = _toward_nearest_sensor(points, sensors)
+    toward = nearest_viewpoint(sensors, points) - points
     grid = NeighbourGrid(points)
     cells = grid.cells(radius)
     return kernels.surface_normals(grid.points, toward, float(radius), int(max_nn), cells.keys, cells.table,

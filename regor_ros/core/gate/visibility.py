@@ -18,13 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import AcceptanceConfig
 from ..geometry import transform_points
 from ..range_image import MIN_RANGE, seen_and_inside
+from ..viewpoint import nearest_viewpoint
 from .changed_world import unexplained_conflicts
 from .figures import NOT_MEASURED, Figures
 
@@ -106,8 +106,8 @@ def visibility_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
     if (matched_index is not None and source.viewpoints is not None and target.viewpoints is not None
             and source.views and target.views):
         points, normals = target.points[matched_index], target.normals[matched_index]
-        sides = opposite_sides(_nearest(target.viewpoints, points),
-                               _nearest(transform_points(T, source.viewpoints), points),
+        sides = opposite_sides(nearest_viewpoint(target.viewpoints, points),
+                               nearest_viewpoint(transform_points(T, source.viewpoints), points),
                                points, normals, acceptance.free_space_min_seen)
     return VisibilityFigures(source_side[0], target_side[0], sides, source_side[1], target_side[1],
                              source_side[2] if source.map_view is not None else target_side[2],
@@ -155,13 +155,6 @@ def _side(T_seer_other: np.ndarray, seer: PreparedCloud, other: PreparedCloud, a
         counts = seen >= min_seen and fraction_seen >= acceptance.map_view_min_seen
         return (inside / seen if counts else None), seen, fraction_seen, None
     return None, 0, None, None
-
-
-def _nearest(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """For each point, the nearest of the viewpoints (the sensor that saw it, most likely)."""
-    if len(viewpoints) == 1:
-        return viewpoints[0]
-    return viewpoints[cKDTree(viewpoints).query(points, workers=kernels.threads())[1]]
 
 
 def free_space_figures(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, acceptance: AcceptanceConfig,
