@@ -15,8 +15,8 @@ from .errors import RegistrationError
 from .feature_index import FeatureIndex
 from .map_view import MapView, trajectory_positions
 from .neighbour_grid import NeighbourGrid
+from .range_image import nearest_viewpoint
 from .shake import seen_views
-from .viewpoint import nearest_viewpoint
 
 if TYPE_CHECKING:
     from .gate.judge import Rules

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from . import kernels
 
@@ -104,3 +105,11 @@ def _bins(offsets: np.ndarray, resolution_deg: float, cols: int):
     """Ranges and flat bin indices of points given relative to the viewpoint (too-close ones dropped)."""
     return kernels.spherical_bins(np.ascontiguousarray(offsets, dtype=np.float64),
                                   float(np.radians(resolution_deg)), int(cols), MIN_RANGE)
+
+
+def nearest_viewpoint(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """For each of ``points``, the nearest of ``viewpoints`` (K, 3): the sensor that saw it, most
+    likely (one viewpoint: that one, for every point)."""
+    if len(viewpoints) == 1:
+        return viewpoints[0]
+    return viewpoints[cKDTree(viewpoints).query(points, workers=kernels.threads())[1]]

@@ -5,10 +5,6 @@ trajectory); RGB-D fragments and LiDAR scans in their sensor frames sit at the o
 """
 from __future__ import annotations
 
-import numpy as np
-from scipy.spatial import cKDTree
-
-from . import kernels
 from .geometry import parse_numbers
 
 ORIGIN = (0.0, 0.0, 0.0)
@@ -23,11 +19,3 @@ def parse_viewpoint(text: str, name: str, auto=ORIGIN):
     if word == "none":
         return None
     return tuple(parse_numbers(word, 3, name, "'x, y, z' in metres, 'none' (unknown) or 'auto'"))
-
-
-def nearest_viewpoint(viewpoints: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """For each of ``points``, the nearest of ``viewpoints`` (K, 3): the sensor that saw it, most
-    likely (one viewpoint: that one, for every point)."""
-    if len(viewpoints) == 1:
-        return viewpoints[0]
-    return viewpoints[cKDTree(viewpoints).query(points, workers=kernels.threads())[1]]

@@ -23,8 +23,7 @@ from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import AcceptanceConfig
 from ..geometry import transform_points
-from ..range_image import MIN_RANGE, seen_and_inside
-from ..viewpoint import nearest_viewpoint
+from ..range_image import MIN_RANGE, nearest_viewpoint, seen_and_inside
 from .changed_world import unexplained_conflicts
 from .figures import NOT_MEASURED, Figures
 
