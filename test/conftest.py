@@ -153,3 +153,16 @@ def no_node_outlives_the_suite():
     if alive:
         pytest.fail(f"{len(alive)} register_node process(es) outlived their tests: "
                     + ", ".join(node.log.name for node in alive))
+
+
+def unpacked(bits, n):
+    """A bit-packed boolean matrix (rows of uint64 words, compatibility's hard and tight) as (rows, n) bool."""
+    return np.unpackbits(bits.view(np.uint8), axis=1, bitorder="little")[:, :n].astype(bool)
+
+
+def dense_soft(compatible):
+    """A Compatibility's soft matrix, from its sparse rows, as a dense (n, n) float32 array."""
+    n = len(compatible.starts) - 1
+    soft = np.zeros((n, n), dtype=np.float32)
+    soft[np.repeat(np.arange(n), np.diff(compatible.starts)), compatible.columns] = compatible.values
+    return soft

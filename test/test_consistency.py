@@ -1,5 +1,5 @@
 import numpy as np
-from conftest import length_residual, random_motion
+from conftest import dense_soft, length_residual, random_motion, unpacked
 
 from regor_ros.core import kernels
 from regor_ros.core.consistency import (
@@ -44,9 +44,32 @@ def test_top_second_order_is_the_dense_definition():
 
 def test_spectral_confidence_ranks_inliers_first():
     src, tgt = clique_problem(seed=3)
-    residual = length_residual(src, tgt)
-    v = leading_eigenvector(np.maximum(0, 1 - residual ** 2 / 0.1 ** 2), 10)
+    v = leading_eigenvector(compatibility(src, tgt, 0.1), 10)
     assert set(np.argsort(-v)[:30]) == set(range(30))
+
+
+def _dense_power_iteration(matrix, iterations):
+    """SC2-PCR's power iteration on a dense matrix, as numpy expressions (what the sparse one replaced)."""
+    v = np.ones(len(matrix), dtype=np.float32)
+    for _ in range(iterations):
+        mv = matrix @ v
+        mv /= np.linalg.norm(mv) + np.float32(1e-6)
+        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
+            return mv
+        v = mv
+    return v
+
+
+def test_leading_eigenvector_is_the_dense_power_iteration():
+    """Up to float32 rounding (the sums run in another order), stopped at the same step: a
+    problem that settles early, and one that does not within the iterations."""
+    for inliers, outliers, iterations in ((60, 540, 10), (300, 300, 40), (20, 580, 3)):
+        src, tgt = clique_problem(seed=4, inliers=inliers, outliers=outliers)
+        compatible = compatibility(src, tgt, 0.2)
+        expected = _dense_power_iteration(dense_soft(compatible), iterations)
+        v = leading_eigenvector(compatible, iterations)
+        assert v.dtype == np.float32
+        np.testing.assert_allclose(v, expected, rtol=0, atol=1e-6)
 
 
 def test_top_k_stable_matches_a_stable_descending_sort():
@@ -58,24 +81,24 @@ def test_top_k_stable_matches_a_stable_descending_sort():
                                       np.argsort(-scores, axis=1, kind="stable")[:, :6])
 
 
-def _unpacked(bits: np.ndarray, n: int) -> np.ndarray:
-    return np.unpackbits(bits.view(np.uint8), axis=1, bitorder="little")[:, :n].astype(bool)
-
-
 def test_compatibility_and_second_order_are_the_dense_definitions():
     # thresholds from sparse to dense; 600 rows span ten 64-bit words per packed row
     src, tgt = clique_problem(inliers=20, outliers=580)
     r = length_residual(src, tgt).astype(np.float32)
     rows = np.arange(0, 600, 7)
     for d in (0.01, 0.3, 1.0):
-        soft, hard, tight = compatibility(src, tgt, d)
-        np.testing.assert_array_equal(soft, np.maximum(0.0, 1.0 - r ** 2 / d ** 2))
+        compatible = compatibility(src, tgt, d)
+        np.testing.assert_array_equal(dense_soft(compatible), np.maximum(0.0, 1.0 - r ** 2 / d ** 2))
+        hard = unpacked(compatible.hard, 600)
         np.testing.assert_array_equal(hard, r < d)
+        for i in rows:  # the sparse rows hold exactly the hard-compatible columns, ascending
+            np.testing.assert_array_equal(compatible.columns[compatible.starts[i]:compatible.starts[i + 1]],
+                                          np.flatnonzero(r[i] < d))
         dense_tight = (r < d / 2).astype(np.float32)
-        np.testing.assert_array_equal(_unpacked(tight, 600), r < d / 2)
+        np.testing.assert_array_equal(unpacked(compatible.tight, 600), r < d / 2)
         sc2 = (dense_tight[rows] @ dense_tight) * hard[rows]
         for k in (5, 20):  # few compatible columns: the zero-valued ones follow in index order
-            np.testing.assert_array_equal(second_order_top_k(tight, hard, rows, k), top_k_stable(sc2, k))
+            np.testing.assert_array_equal(second_order_top_k(compatible, rows, k), top_k_stable(sc2, k))
 
 
 def test_compatibility_with_heights_drops_pairs_whose_heights_disagree():
@@ -83,8 +106,9 @@ def test_compatibility_with_heights_drops_pairs_whose_heights_disagree():
     offsets = np.random.default_rng(5).normal(0, 0.2, len(src))
     distance = np.linalg.norm(src[:, None] - src[None], axis=2)
     agree = np.abs(offsets[:, None] - offsets[None]) <= 0.3 + 0.1 * distance
-    soft, hard, tight = compatibility(src, tgt, 0.3, (offsets, 0.1))
-    plain_soft, plain_hard, _ = compatibility(src, tgt, 0.3)
-    np.testing.assert_array_equal(hard, plain_hard & agree)
-    np.testing.assert_array_equal(soft, np.where(agree, plain_soft, 0.0))
-    assert not _unpacked(tight, len(src))[~agree].any()
+    compatible = compatibility(src, tgt, 0.3, (offsets, 0.1))
+    plain = compatibility(src, tgt, 0.3)
+    n = len(src)
+    np.testing.assert_array_equal(unpacked(compatible.hard, n), unpacked(plain.hard, n) & agree)
+    np.testing.assert_array_equal(dense_soft(compatible), np.where(agree, dense_soft(plain), 0.0))
+    assert not unpacked(compatible.tight, n)[~agree].any()

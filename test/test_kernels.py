@@ -2,10 +2,11 @@
 import numba
 import numpy as np
 import pytest
-from conftest import load_map_query
+from conftest import dense_soft, load_map_query, unpacked
 from scipy.spatial.distance import cdist
 
 from regor_ros.core import RegorConfig, kernels, prepare_cloud, register, warm_up
+from regor_ros.core.consistency import compatibility, leading_eigenvector, second_order_top_k, seed_consensus
 
 
 def _problem(seed=0, n=700):
@@ -48,10 +49,12 @@ def test_results_do_not_depend_on_the_thread_count():
     try:
         for threads in (1, before):
             numba.set_num_threads(threads)
-            soft, hard, tight = kernels.compatibility_matrices(src, tgt, 0.1, np.zeros(len(src)), 0.0, False)
-            first = kernels.second_order_top_k(tight, hard, rows, 20)
-            results.append((soft, hard, tight, first, kernels.triangle_scores(src, tgt, 0.1),
-                             *kernels.seed_consensus(first, hard, soft, 10, 10), *_pair_moments(src, tgt)))
+            compatible = compatibility(src, tgt, 0.1)
+            first = second_order_top_k(compatible, rows, 20)
+            results.append((compatible.starts, compatible.columns, compatible.values, compatible.hard,
+                            compatible.tight, leading_eigenvector(compatible, 10), first,
+                            kernels.triangle_scores(src, tgt, 0.1), *seed_consensus(first, compatible, 10, 10),
+                            *_pair_moments(src, tgt)))
     finally:
         numba.set_num_threads(before)
     for one, many in zip(*results, strict=True):
@@ -209,17 +212,30 @@ def test_numpy_blas_runs_on_one_thread_during_registrations_and_is_restored():
     assert _blas_threads() == before
 
 
+def _batched_power_iteration(matrix, iterations):
+    """Power iteration from ones over a batch of matrices, stopping for the whole batch when every
+    vector has settled (SC2-PCR's numpy expression)."""
+    v = np.ones(matrix.shape[:-1], dtype=matrix.dtype)
+    for _ in range(iterations):
+        mv = (matrix @ v[..., None])[..., 0]
+        mv /= np.linalg.norm(mv, axis=-1, keepdims=True) + 1e-6
+        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
+            return mv
+        v = mv
+    return v
+
+
 def _seed_consensus_numpy(first, hard, soft, k2, iterations):
     """SC2-PCR++'s second stage and local spectral weights as numpy expressions (what
-    seed_consensus replaced)."""
-    from regor_ros.core.consistency import leading_eigenvector, top_k_stable
+    seed_consensus replaced), on dense hard and soft matrices."""
+    from regor_ros.core.consistency import top_k_stable
     hard_first = hard[first[:, :, None], first[:, None, :]].astype(np.float32)
     score = np.einsum("sm,smj->sj", hard_first[:, 0, :], hard_first)
     second = np.take_along_axis(first, top_k_stable(score, k2), axis=1)
     local = soft[second[:, :, None], second[:, None, :]].copy()
     diag = np.arange(k2)
     local[:, diag, diag] = 0.0
-    return second, leading_eigenvector(local, iterations)
+    return second, _batched_power_iteration(local, iterations)
 
 
 @pytest.mark.parametrize("k1, k2, iterations", [(20, 10, 10), (40, 30, 10), (12, 12, 1), (20, 10, 0)])
@@ -228,10 +244,11 @@ def test_seed_consensus_is_the_numpy_expression(k1, k2, iterations):
     stopped at the same power iteration for the whole batch."""
     src, tgt = _problem(3)
     tgt[::3] = np.random.default_rng(4).uniform(-3, 3, size=tgt[::3].shape)   # outliers: sets differ
-    soft, hard, tight = kernels.compatibility_matrices(src, tgt, 0.1, np.zeros(len(src)), 0.0, False)
-    first = kernels.second_order_top_k(tight, hard, np.arange(0, 700, 2), k1)
-    second, weights = kernels.seed_consensus(first, hard, soft, k2, iterations)
-    expected_second, expected_weights = _seed_consensus_numpy(first, hard, soft, k2, iterations)
+    compatible = compatibility(src, tgt, 0.1)
+    first = second_order_top_k(compatible, np.arange(0, 700, 2), k1)
+    second, weights = seed_consensus(first, compatible, k2, iterations)
+    expected_second, expected_weights = _seed_consensus_numpy(first, unpacked(compatible.hard, len(src)),
+                                                              dense_soft(compatible), k2, iterations)
     np.testing.assert_array_equal(second, expected_second)
     np.testing.assert_allclose(weights, expected_weights, rtol=0, atol=1e-6)
     assert weights.dtype == np.float32

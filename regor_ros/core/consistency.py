@@ -6,6 +6,8 @@ three-point consistency) is built from that length residual.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from . import kernels
@@ -15,38 +17,56 @@ def _points(points: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(points, dtype=np.float64)
 
 
+@dataclass
+class Compatibility:
+    """SC2-PCR's compatibility of n correspondences from their length residual r (rounded to
+    float32) and the threshold d: hard r < d and tight r < d / 2 as bit-packed rows
+    (n, ceil(n / 64)) uint64; soft max(0, 1 - r^2 / d^2) only where hard is set, as sparse rows
+    (row i: columns[starts[i]:starts[i + 1]], ascending, and values[...]). Wrong matches leave most
+    pairs incompatible: a dense soft matrix was mostly zeros, and writing it and reading it once per
+    power iteration cost more than its products."""
+
+    starts: np.ndarray    # (n + 1,) int64
+    columns: np.ndarray   # (hard pairs,) int32
+    values: np.ndarray    # (hard pairs,) float32, soft
+    hard: np.ndarray      # (n, ceil(n / 64)) uint64
+    tight: np.ndarray     # (n, ceil(n / 64)) uint64
+    inputs: tuple         # compatibility_matrices' arguments, which seed_consensus takes again
+
+
 def compatibility(source: np.ndarray, target: np.ndarray, threshold: float,
-                  heights: tuple[np.ndarray, float] | None = None):
-    """SC2-PCR's three compatibility matrices of (n, 3) correspondences: soft
-    max(0, 1 - r^2 / d^2) (n, n) float32, hard r < d (n, n) bool, and tight r < d / 2 with its
-    rows bit-packed (n, ceil(n / 64)) uint64, for second_order_top_k; r is the length residual
-    rounded to float32. ``heights`` (each correspondence's height offset along up, and the slack
-    per metre of distance), from a gravity prior, is a further condition: two compatible
-    correspondences' offsets agree within d plus the slack times their distance."""
+                  heights: tuple[np.ndarray, float] | None = None) -> Compatibility:
+    """The Compatibility of (n, 3) correspondences (source[i], target[i]). ``heights`` (each
+    correspondence's height offset along up, and the slack per metre of distance), from a gravity
+    prior, is a further condition: two compatible correspondences' offsets agree within d plus
+    the slack times their distance."""
     offsets, slack = heights if heights is not None else (np.zeros(len(source)), 0.0)
-    return kernels.compatibility_matrices(_points(source), _points(target), float(threshold),
-                                          np.ascontiguousarray(offsets, dtype=np.float64), float(slack),
-                                          heights is not None)
+    inputs = (_points(source), _points(target), float(threshold), np.ascontiguousarray(offsets, dtype=np.float64),
+              float(slack), heights is not None)
+    starts, columns, values, hard, tight = kernels.compatibility_matrices(*inputs)
+    return Compatibility(starts, columns, values, hard, tight, inputs)
 
 
-def second_order_top_k(tight: np.ndarray, hard: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+def second_order_top_k(compatible: Compatibility, rows: np.ndarray, k: int) -> np.ndarray:
     """For each of ``rows``, the k correspondences of highest SC2-PCR second-order compatibility
     (tight[row] . tight[j]) * hard[row, j], best first, ties in index order: (len(rows), k).
     Counted only where hard is set (bit-packed popcounts), never as a dense product."""
-    return kernels.second_order_top_k(tight, hard, np.asarray(rows, dtype=np.int64), int(k))
+    return kernels.second_order_top_k(compatible.tight, compatible.starts, compatible.columns,
+                                      np.asarray(rows, dtype=np.int64), int(k))
 
 
-def leading_eigenvector(matrix: np.ndarray, iterations: int) -> np.ndarray:
-    """Power iteration from the all-ones vector, batched over leading axes; stops early when every
-    vector has converged (the spectral confidence of SC2-PCR)."""
-    v = np.ones(matrix.shape[:-1], dtype=matrix.dtype)
-    for _ in range(iterations):
-        mv = (matrix @ v[..., None])[..., 0]
-        mv /= np.linalg.norm(mv, axis=-1, keepdims=True) + 1e-6
-        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
-            return mv
-        v = mv
-    return v
+def leading_eigenvector(compatible: Compatibility, iterations: int) -> np.ndarray:
+    """The soft compatibility's leading eigenvector by power iteration from the all-ones vector,
+    stopping early when it has converged (the spectral confidence of SC2-PCR)."""
+    return kernels.sparse_leading_eigenvector(compatible.starts, compatible.columns, compatible.values,
+                                              int(iterations))
+
+
+def seed_consensus(first: np.ndarray, compatible: Compatibility, k2: int,
+                   iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """SC2-PCR++'s second-stage sets of the seeds' first-stage sets ``first`` (S, k1) and their
+    local spectral weights (kernels.seed_consensus): (second (S, k2), weights (S, k2))."""
+    return kernels.seed_consensus(first, compatible.hard, *compatible.inputs, int(k2), int(iterations))
 
 
 def top_k_stable(counts: np.ndarray, k: int) -> np.ndarray:

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from . import kernels
 from .cloud import PreparedCloud
 from .config import InitialConfig
-from .consistency import compatibility, leading_eigenvector, second_order_top_k, top_k_stable
+from .consistency import compatibility, leading_eigenvector, second_order_top_k, seed_consensus, top_k_stable
 from .estimate import agreeing, poses_close, post_refine, post_refine_all, weighted_kabsch
 from .geometry import transform_points
 from .gravity import GravityPrior
@@ -59,15 +59,15 @@ def seed_hypotheses(src: np.ndarray, tgt: np.ndarray, cfg: InitialConfig,
     With a gravity prior, compatible correspondences also agree in height."""
     n = len(src)
     d = cfg.compatibility_threshold
-    soft, hard, tight = compatibility(src, tgt, d, None if prior is None else prior.height_offsets(src, tgt))
+    compatible = compatibility(src, tgt, d, None if prior is None else prior.height_offsets(src, tgt))
 
-    confidence = leading_eigenvector(soft, cfg.power_iterations)
+    confidence = leading_eigenvector(compatible, cfg.power_iterations)
     seeds = select_seeds(confidence, src, cfg.nms_radius, max(1, int(cfg.seed_ratio * n)))
 
     k1, k2 = (cfg.k1, cfg.k2) if cfg.k1 <= n else (4, 4)
     k1, k2 = min(k1, n), min(k2, n)
-    first = second_order_top_k(tight, hard, seeds, k1)                   # C1, best first
-    second, weights = kernels.seed_consensus(first, hard, soft, k2, cfg.power_iterations)
+    first = second_order_top_k(compatible, seeds, k1)                    # C1, best first
+    second, weights = seed_consensus(first, compatible, k2, cfg.power_iterations)
     weights = weights / (weights.sum(axis=1, keepdims=True) + 1e-6)
     return weighted_kabsch(src[second], tgt[second], weights.astype(np.float64))
 

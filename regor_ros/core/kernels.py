@@ -137,35 +137,123 @@ def _pack_below(values, limit, bits, i):
         bits[i, w] = word
 
 
+@njit(inline="always")
+def _compatibility_residual(source, target, heights, threshold, slack, use_heights, i, j):
+    """The length residual of correspondences i and j rounded to float32, infinite where their
+    ``heights`` differ by more than ``threshold`` + ``slack`` x their source distance (with
+    ``use_heights``: the gravity prior)."""
+    distance = _distance(source, i, j)
+    r = np.float32(abs(distance - _distance(target, i, j)))
+    if use_heights and not abs(heights[i] - heights[j]) <= threshold + slack * distance:
+        r = np.float32(np.inf)
+    return r
+
+
+@njit(inline="always")
+def _soft(source, target, heights, threshold, slack, use_heights, d2, i, j):
+    """The soft compatibility max(0, 1 - r^2 / d^2) of correspondences i and j (d^2 = ``d2``)."""
+    r = _compatibility_residual(source, target, heights, threshold, slack, use_heights, i, j)
+    value = np.float32(1.0) - (r * r) / d2
+    return value if value > 0 else np.float32(0.0)
+
+
+@njit(inline="always")
+def _lowest_bit(word):
+    """The position of the lowest set bit of a nonzero uint64."""
+    return np.int64(_popcount((word & (~word + np.uint64(1))) - np.uint64(1)))
+
+
 @njit(parallel=True, **JIT)
 def compatibility_matrices(source, target, threshold, heights, slack, use_heights):
-    """SC2-PCR's soft (float32), hard (bool) and tight (bit-packed rows, uint64) compatibility of
-    (n, 3) correspondences from the length residual r = ||a_i - a_j| - |b_i - b_j|| rounded to
-    float32: soft = max(0, 1 - r^2 / d^2), hard = r < d, tight = r < d / 2. With ``use_heights``,
-    a pair whose ``heights`` differ by more than ``threshold`` + ``slack`` x its source distance
-    is incompatible in all three (the gravity prior)."""
+    """SC2-PCR's compatibility of (n, 3) correspondences from the length residual
+    r = ||a_i - a_j| - |b_i - b_j|| rounded to float32: hard = r < d and tight = r < d / 2 as
+    bit-packed rows (n, ceil(n / 64)) uint64, and soft = max(0, 1 - r^2 / d^2) where hard is set,
+    as sparse rows (row i: columns[starts[i]:starts[i + 1]], ascending, and their values). With
+    ``use_heights``, a pair whose ``heights`` differ by more than ``threshold`` + ``slack`` x its
+    source distance is incompatible in all three (the gravity prior). (starts, columns, values,
+    hard, tight)"""
     n = source.shape[0]
-    soft = np.empty((n, n), dtype=np.float32)
-    hard = np.empty((n, n), dtype=np.bool_)
-    tight = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
+    words = (n + WORD - 1) // WORD
+    hard = np.zeros((n, words), dtype=np.uint64)
+    tight = np.zeros((n, words), dtype=np.uint64)
+    counts = np.zeros(n, dtype=np.int64)
     d = np.float32(threshold)
     half = np.float32(threshold / 2)
     d2 = np.float32(threshold ** 2)
     source, target = _rows(source), _rows(target)
     for i in prange(n):
-        # the row's residuals first, then each matrix from them: every loop but the packing is SIMD
+        # the row's residuals first (SIMD), then the packed rows from them
         r = np.empty(n, dtype=np.float32)
         for j in range(n):
-            distance = _distance(source, i, j)
-            r[j] = np.float32(abs(distance - _distance(target, i, j)))
-            if use_heights and not abs(heights[i] - heights[j]) <= threshold + slack * distance:
-                r[j] = np.float32(np.inf)
-        for j in range(n):
-            hard[i, j] = r[j] < d
-            value = np.float32(1.0) - (r[j] * r[j]) / d2
-            soft[i, j] = value if value > 0 else np.float32(0.0)
+            r[j] = _compatibility_residual(source, target, heights, threshold, slack, use_heights, i, j)
+        _pack_below(r, d, hard, i)
         _pack_below(r, half, tight, i)
-    return soft, hard, tight
+        for w in range(words):
+            counts[i] += _popcount(hard[i, w])
+    starts = np.zeros(n + 1, dtype=np.int64)
+    starts[1:] = np.cumsum(counts)
+    columns = np.empty(starts[n], dtype=np.int32)
+    values = np.empty(starts[n], dtype=np.float32)
+    for i in prange(n):  # the residuals again, of the compatible pairs only
+        at = starts[i]
+        for w in range(words):
+            word = hard[i, w]
+            while word:
+                j = w * WORD + _lowest_bit(word)
+                word &= word - np.uint64(1)
+                columns[at] = j
+                values[at] = _soft(source, target, heights, threshold, slack, use_heights, d2, i, j)
+                at += 1
+    return starts, columns, values, hard, tight
+
+
+@njit(inline="always")
+def _sparse_row_product(starts, columns, values, i, v):
+    """Row i of a matrix given as sparse rows times the vector v, in float64: four running sums
+    (every fourth entry each), so that the adds do not wait on one another."""
+    s0 = s1 = s2 = s3 = 0.0
+    a, end = starts[i], starts[i + 1]
+    while a + 4 <= end:
+        s0 += np.float64(values[a]) * v[columns[a]]
+        s1 += np.float64(values[a + 1]) * v[columns[a + 1]]
+        s2 += np.float64(values[a + 2]) * v[columns[a + 2]]
+        s3 += np.float64(values[a + 3]) * v[columns[a + 3]]
+        a += 4
+    while a < end:
+        s0 += np.float64(values[a]) * v[columns[a]]
+        a += 1
+    return np.float32((s0 + s1) + (s2 + s3))
+
+
+@njit(parallel=True, **JIT)
+def sparse_leading_eigenvector(starts, columns, values, iterations):
+    """The leading eigenvector of a symmetric matrix given as sparse rows (compatibility_matrices'
+    soft), by power iteration from the all-ones vector (float32, each row's sum in float64 in
+    column order); stops at the first step where no entry moves by more than 1e-8 + 1e-5 of
+    itself (numpy's allclose)."""
+    n = len(starts) - 1
+    v = np.ones(n, dtype=np.float32)
+    mv = np.empty(n, dtype=np.float32)
+    for _ in range(iterations):
+        for i in prange(n):
+            mv[i] = _sparse_row_product(starts, columns, values, i, v)
+        norm = np.float32(np.sqrt(np.sum(mv.astype(np.float64) ** 2))) + np.float32(1e-6)
+        mv /= norm
+        settled = True
+        for i in range(n):
+            if not abs(mv[i] - v[i]) <= 1e-8 + 1e-5 * abs(v[i]):
+                settled = False
+                break
+        v, mv = mv, v
+        if settled:
+            break
+    return v
+
+
+@njit(inline="always")
+def _bit(bits, i, j):
+    """Whether column j of row i of a packed boolean matrix is set."""
+    return (bits[i, j >> 6] >> np.uint64(j & 63)) & np.uint64(1) != 0
 
 
 @njit(inline="always")
@@ -240,15 +328,16 @@ def _top_k_of_row(values, columns, k, n, out):
 
 
 @njit(parallel=True, **JIT)
-def second_order_top_k(tight, hard, rows, k):
+def second_order_top_k(tight, starts, columns_of, rows, k):
     """For each of ``rows``: the k columns j of highest second-order compatibility
     (tight[row] . tight[j]) x hard[row, j], best first, ties in column order (``tight``
-    bit-packed). Only the columns hard-compatible with the row are counted (the others are 0)."""
-    n = hard.shape[0]
+    bit-packed; the hard-compatible columns of row i are columns_of[starts[i]:starts[i + 1]],
+    ascending, compatibility_matrices' sparse rows). Only those are counted (the others are 0)."""
+    n = tight.shape[0]
     out = np.empty((len(rows), k), dtype=np.int64)
     for s in prange(len(rows)):
         row = rows[s]
-        columns = np.flatnonzero(hard[row])
+        columns = columns_of[starts[row]:starts[row + 1]]
         values = np.empty(len(columns), dtype=np.int64)
         for m in range(len(columns)):
             values[m] = _common(tight, row, columns[m])
@@ -257,14 +346,19 @@ def second_order_top_k(tight, hard, rows, k):
 
 
 @njit(parallel=True, **JIT)
-def seed_consensus(first, hard, soft, k2, iterations):
+def seed_consensus(first, hard, source, target, threshold, heights, slack, use_heights, k2, iterations):
     """SC2-PCR++'s second stage and local spectral weights for each seed's first-stage set
     ``first`` (S, k1), best member first: the k2 members most hard-compatible through the set with
     both the best member and themselves (counts, ties to the earlier member), then the leading
     eigenvector of their soft compatibility without its diagonal, by power iteration from ones
-    (float32, as consistency.leading_eigenvector, which stops for the whole batch at the first
-    step where every seed's vector has settled: so does this). (second (S, k2), weights (S, k2))."""
+    (float32, stopping for the whole batch at the first step where every seed's vector has
+    settled, as SC2-PCR's batched iteration does). ``hard`` bit-packed as compatibility_matrices
+    gives it, from the same correspondences and arguments, with which the few soft values a set
+    needs are computed again (faster than looking them up in the sparse rows).
+    (second (S, k2), weights (S, k2))."""
     seeds, k1 = first.shape
+    source, target = _rows(source), _rows(target)
+    d2 = np.float32(threshold ** 2)
     second = np.empty((seeds, k2), np.int64)
     vectors = np.ones((seeds, iterations + 1, k2), np.float32)   # [s, 0]: the start
     settled = np.zeros((seeds, iterations), np.bool_)
@@ -274,16 +368,17 @@ def seed_consensus(first, hard, soft, k2, iterations):
     for s in prange(seeds):
         members = first[s]
         for m in range(k1):
-            if hard[members[0], members[m]]:
+            if _bit(hard, members[0], members[m]):
                 for j in range(k1):
-                    if hard[members[m], members[j]]:
+                    if _bit(hard, members[m], members[j]):
                         scores[s, j] += 1
         _top_k_into(scores[s], k2, tops[s])
         for i in range(k2):
             second[s, i] = members[tops[s, i]]
         for i in range(k2):
             for j in range(k2):
-                local[s, i, j] = soft[second[s, i], second[s, j]] if i != j else np.float32(0.0)
+                local[s, i, j] = _soft(source, target, heights, threshold, slack, use_heights, d2, second[s, i],
+                                       second[s, j]) if i != j else np.float32(0.0)
         for step in range(iterations):
             v, mv = vectors[s, step], vectors[s, step + 1]
             total = np.float32(0.0)
@@ -1589,10 +1684,11 @@ def warm_up() -> None:
     start scipy's OpenBLAS threads, which took the node's cores under load)."""
     with blas_on_one_thread():
         points = np.random.default_rng(0).random((8, 3))
-        soft = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)[0]
-        _, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
-        second_order_top_k(tight, hard, np.arange(3, dtype=np.int64), 2)
-        seed_consensus(np.zeros((2, 3), np.int64), hard, soft, 2, 2)
+        compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, False)
+        starts, columns, soft, hard, tight = compatibility_matrices(points, points, 0.1, np.zeros(8), 0.0, True)
+        sparse_leading_eigenvector(starts, columns, soft, 2)
+        second_order_top_k(tight, starts, columns, np.arange(3, dtype=np.int64), 2)
+        seed_consensus(np.zeros((2, 3), np.int64), hard, points, points, 0.1, np.zeros(8), 0.0, True, 2, 2)
         triangle_scores(points, points, 0.1)
         generalized_mutual_pairs(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
