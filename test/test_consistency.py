@@ -42,6 +42,14 @@ def test_top_second_order_is_the_dense_definition():
     np.testing.assert_array_equal(top_second_order(src, tgt, 0.5, 120), top_k_stable(scores, 120))
 
 
+def test_triangle_scores_are_the_dense_row_sums_on_any_runs():
+    src, tgt = clique_problem(inliers=50, outliers=250)  # 300 rows: the last word of each row is partial
+    hard = (length_residual(src, tgt) < 0.4).astype(np.int64)
+    expected = ((hard @ hard) * hard).sum(axis=1)
+    for runs in (1, 2, 3, 7):
+        np.testing.assert_array_equal(kernels.triangle_scores(src, tgt, 0.4, runs), expected)
+
+
 def test_spectral_confidence_ranks_inliers_first():
     src, tgt = clique_problem(seed=3)
     v = leading_eigenvector(compatibility(src, tgt, 0.1), 10)

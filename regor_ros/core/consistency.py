@@ -91,4 +91,5 @@ def top_second_order(source: np.ndarray, target: np.ndarray, threshold: float, k
     sums of (H H) * H for the hard compatibility H = r < threshold (r in float64), i.e. how many
     pairs agree with both i and j, summed over the j compatible with i. Inliers form a clique
     and score highest."""
-    return top_k_stable(kernels.triangle_scores(_points(source), _points(target), float(threshold)), keep)
+    scores = kernels.triangle_scores(_points(source), _points(target), float(threshold), kernels.threads())
+    return top_k_stable(scores, keep)

@@ -443,10 +443,10 @@ def generalized_mutual_pairs(similarity, k):
 
 
 @njit(parallel=True, **JIT)
-def triangle_scores(source, target, threshold):
+def triangle_scores(source, target, threshold, runs):
     """Row sums of the second-order compatibility (H H) * H of the hard compatibility
     H = (length residual < threshold, in float64): for each i, the pairs (j, l) with i, j, l
-    mutually compatible, counted over j."""
+    mutually compatible, counted over j. ``runs``: the threads the pairs are counted on."""
     n = source.shape[0]
     source, target = _rows(source), _rows(target)
     bits = np.zeros((n, (n + WORD - 1) // WORD), dtype=np.uint64)
@@ -455,14 +455,25 @@ def triangle_scores(source, target, threshold):
         for j in range(n):
             r[j] = _residual(source, target, i, j)
         _pack_below(r, threshold, bits, i)
-    scores = np.zeros(n, dtype=np.int64)
-    for i in prange(n):
-        total = 0
-        for j in range(n):
-            if bits[i, j // WORD] >> np.uint64(j % WORD) & np.uint64(1):
-                total += _common(bits, i, j)
-        scores[i] = total
-    return scores
+    # common(i, j) = common(j, i): each pair counted once (j > i) and added to both rows, in one
+    # row of counts per run of rows (every runs-th row, to balance the triangle); integer sums,
+    # the same whatever the runs
+    partial = np.zeros((runs, n), dtype=np.int64)
+    for run in prange(runs):
+        for i in range(run, n, runs):
+            total = _common(bits, i, i)
+            for w in range(i // WORD, bits.shape[1]):  # the row's set bits beyond i, lowest first
+                word = bits[i, w]
+                if w == i // WORD:
+                    word &= ~((np.uint64(2) << np.uint64(i % WORD)) - np.uint64(1))
+                while word:
+                    j = w * WORD + _lowest_bit(word)
+                    word &= word - np.uint64(1)
+                    both = _common(bits, i, j)
+                    total += both
+                    partial[run, j] += both
+            partial[run, i] += total
+    return partial.sum(axis=0)
 
 
 @njit(parallel=True, **JIT)
@@ -1689,7 +1700,7 @@ def warm_up() -> None:
         sparse_leading_eigenvector(starts, columns, soft, 2)
         second_order_top_k(tight, starts, columns, np.arange(3, dtype=np.int64), 2)
         seed_consensus(np.zeros((2, 3), np.int64), hard, points, points, 0.1, np.zeros(8), 0.0, True, 2, 2)
-        triangle_scores(points, points, 0.1)
+        triangle_scores(points, points, 0.1, 2)
         generalized_mutual_pairs(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
         verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
