@@ -53,8 +53,8 @@ def test_results_do_not_depend_on_the_thread_count():
             first = second_order_top_k(compatible, rows, 20)
             results.append((compatible.starts, compatible.columns, compatible.values, compatible.hard,
                             compatible.tight, leading_eigenvector(compatible, 10), first,
-                            kernels.triangle_scores(src, tgt, 0.1, kernels.threads()), *seed_consensus(first, compatible, 10, 10),
-                            *_pair_moments(src, tgt)))
+                            kernels.triangle_scores(src, tgt, 0.1, kernels.threads()),
+                            *seed_consensus(first, compatible, 10, 10), *_pair_moments(src, tgt)))
     finally:
         numba.set_num_threads(before)
     for one, many in zip(*results, strict=True):
