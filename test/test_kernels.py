@@ -2,7 +2,7 @@
 import numba
 import numpy as np
 import pytest
-from conftest import dense_soft, load_map_query, unpacked
+from conftest import dense_soft, load_map_query, random_motion, unpacked
 from scipy.spatial.distance import cdist
 
 from regor_ros.core import RegorConfig, kernels, prepare_cloud, register, warm_up
@@ -26,12 +26,17 @@ def _pair_moments(src, tgt):
 
 def test_landed_counts_is_the_numpy_expression():
     rng = np.random.default_rng(1)
-    moved = rng.uniform(-1, 1, size=(6, 200, 3)).astype(np.float32)
+    rotations = np.stack([random_motion(seed)[:3, :3] for seed in range(6)])
+    translations = rng.uniform(-0.2, 0.2, size=(6, 3))
+    points = rng.uniform(-1, 1, size=(200, 3))
+    moved = (points @ np.swapaxes(rotations, 1, 2) + translations[:, None]).astype(np.float32)
     planes = rng.uniform(-1, 1, size=(3, 200, 30)).astype(np.float32)
     threshold2 = np.float32(0.15 ** 2)
     expected = [(sum((planes[c] - m[:, c, None]) ** 2 for c in range(3)).min(axis=1) <= threshold2).sum()
                 for m in moved]
-    np.testing.assert_array_equal(kernels.landed_counts(moved, planes, threshold2), expected)
+    assert min(expected) > 0
+    np.testing.assert_array_equal(kernels.landed_counts(rotations, translations, points, planes, threshold2),
+                                  expected)
 
 
 def test_most_length_agreement_is_the_numpy_expression():

@@ -495,16 +495,21 @@ def region_agreement(source, target, valid, threshold):
 
 
 @njit(parallel=True, **JIT)
-def landed_counts(moved, planes, threshold2):
-    """For each pose h: how many source keypoints (moved[h], float32) land within the squared
+def landed_counts(rotations, translations, points, planes, threshold2):
+    """For each pose h (``rotations`` (H, 3, 3), ``translations`` (H, 3)): how many source
+    keypoints (``points`` (N, 3)), moved by it and rounded to float32, land within the squared
     ``threshold2`` of one of their K candidates (``planes``: x, y, z, (3, N, K) float32). Every
     candidate is tested (no early exit), so the loop over them runs in SIMD lanes."""
-    poses, rows, k = moved.shape[0], planes.shape[1], planes.shape[2]
+    poses, rows, k = rotations.shape[0], planes.shape[1], planes.shape[2]
     counts = np.zeros(poses, dtype=np.int64)
     for h in prange(poses):
+        R, t = rotations[h], translations[h]
         total = 0
         for i in range(rows):
-            x, y, z = moved[h, i, 0], moved[h, i, 1], moved[h, i, 2]
+            px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+            x = np.float32(px * R[0, 0] + py * R[0, 1] + pz * R[0, 2] + t[0])
+            y = np.float32(px * R[1, 0] + py * R[1, 1] + pz * R[1, 2] + t[1])
+            z = np.float32(px * R[2, 0] + py * R[2, 1] + pz * R[2, 2] + t[2])
             xs, ys, zs = planes[0, i], planes[1, i], planes[2, i]
             hits = 0
             for c in range(k):
@@ -1702,7 +1707,8 @@ def warm_up() -> None:
         seed_consensus(np.zeros((2, 3), np.int64), hard, points, points, 0.1, np.zeros(8), 0.0, True, 2, 2)
         triangle_scores(points, points, 0.1, 2)
         generalized_mutual_pairs(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
-        landed_counts(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.float32(0.01))
+        landed_counts(np.zeros((2, 3, 3)), np.zeros((2, 3)), np.zeros((8, 3)), np.zeros((3, 8, 4), np.float32),
+                      np.float32(0.01))
         verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
                             np.float32(0.01), np.float32(0.02))
         most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
