@@ -94,10 +94,9 @@ def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
     hypothesis. At low overlap the inlier count on a few thousand matches ranks the rare
     correct pose below the crowd; the candidates' fuller feature evidence does not."""
     rows = np.unique(np.linspace(0, len(source_points) - 1, SUPPORT_ROWS).astype(np.int64))
-    planes = np.ascontiguousarray(candidate_points[:, rows])
-    return kernels.landed_counts(np.ascontiguousarray(transforms[:, :3, :3]), np.ascontiguousarray(transforms[:, :3, 3]),
-                                 np.ascontiguousarray(source_points[rows], dtype=np.float64), planes,
-                                 np.float32(threshold ** 2))
+    rotations, translations = (np.ascontiguousarray(x) for x in (transforms[:, :3, :3], transforms[:, :3, 3]))
+    return kernels.landed_counts(rotations, translations, np.ascontiguousarray(source_points[rows], dtype=np.float64),
+                                 np.ascontiguousarray(candidate_points[:, rows]), np.float32(threshold ** 2))
 
 
 def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
