@@ -53,21 +53,27 @@ def test_a_scan_the_partial_threshold_withheld_is_published_once_the_map_side_is
     assert result.summary()["visibility"]["map_seen"] > 0.9
 
 
-def test_the_covariance_covers_the_error_along_a_narrow_scans_weak_direction(avia):
-    """scan_000259 (5 k points in a Livox Avia's narrow field) is published 0.17 m off the SLAM
-    pose (0.39 m with FAISS's candidates), in the directions its surfaces constrain least: along
-    the best-fixed axis (sigma 0.10 m) it is 3 mm off, more than that sigma along the others
-    (0.27, 0.36 m). Shaped by the surfaces, the covariance holds it within its 99 % ellipsoid.
-    (Refined point to plane it is closer still.)"""
+def test_the_covariance_covers_the_error_along_narrow_scans_weak_directions(avia):
+    """The Livox Avia's scans (5 k points in a narrow field), refined point to point: every pose
+    published is right and lies within its covariance's 99 % ellipsoid. Some are off by more than
+    the sigma of their best-fixed axis, in the directions their surfaces constrain least, and
+    within it along that axis: the covariance is shaped by the surfaces, not one radius. (Refined
+    point to plane they are closer still.)"""
     cloud, trajectory, queries = avia
-    query = queries["scan_000259"]
     point_level = OUTDOOR.replace({"estimation.plane_refinement": False})
-    result = register(query.scan, prepare_cloud(cloud, point_level, "map", trajectory=trajectory), point_level)
-    assert result.accepted and is_success(result.transform, query.truth, "outdoor"), result.reason
-    variances, axes = np.linalg.eigh(result.covariance[:3, :3])
-    error = axes.T @ (result.transform[:3, 3] - query.truth[:3, 3])
-    assert abs(error[0]) < np.sqrt(variances[0]) < np.linalg.norm(error)
-    assert error_sigmas(result.transform, query.truth, result.covariance) < ERROR_SIGMAS_99
+    target = prepare_cloud(cloud, point_level, "map", trajectory=trajectory)
+    published = shaped = 0
+    for query in queries.values():
+        result = register(query.scan, target, point_level)
+        if not result.accepted:
+            continue
+        published += 1
+        assert is_success(result.transform, query.truth, "outdoor"), query.id
+        assert error_sigmas(result.transform, query.truth, result.covariance) < ERROR_SIGMAS_99, query.id
+        variances, axes = np.linalg.eigh(result.covariance[:3, :3])
+        error = axes.T @ (result.transform[:3, 3] - query.truth[:3, 3])
+        shaped += abs(error[0]) < np.sqrt(variances[0]) < np.linalg.norm(error)
+    assert published >= len(queries) // 2 and shaped >= 1
 
 
 def test_scans_fused_along_odometry_find_a_scan_that_alone_is_lost():
