@@ -166,3 +166,16 @@ def dense_soft(compatible):
     soft = np.zeros((n, n), dtype=np.float32)
     soft[np.repeat(np.arange(n), np.diff(compatible.starts)), compatible.columns] = compatible.values
     return soft
+
+
+def dense_power_iteration(matrix, iterations):
+    """SC2-PCR's power iteration from ones as numpy expressions (what the compiled ones replaced),
+    batched over leading axes, stopping for the whole batch when every vector has settled."""
+    v = np.ones(matrix.shape[:-1], dtype=matrix.dtype)
+    for _ in range(iterations):
+        mv = (matrix @ v[..., None])[..., 0]
+        mv /= np.linalg.norm(mv, axis=-1, keepdims=True) + 1e-6
+        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
+            return mv
+        v = mv
+    return v

@@ -1,5 +1,5 @@
 import numpy as np
-from conftest import dense_soft, length_residual, random_motion, unpacked
+from conftest import dense_power_iteration, dense_soft, length_residual, random_motion, unpacked
 
 from regor_ros.core import kernels
 from regor_ros.core.consistency import (
@@ -56,25 +56,13 @@ def test_spectral_confidence_ranks_inliers_first():
     assert set(np.argsort(-v)[:30]) == set(range(30))
 
 
-def _dense_power_iteration(matrix, iterations):
-    """SC2-PCR's power iteration on a dense matrix, as numpy expressions (what the sparse one replaced)."""
-    v = np.ones(len(matrix), dtype=np.float32)
-    for _ in range(iterations):
-        mv = matrix @ v
-        mv /= np.linalg.norm(mv) + np.float32(1e-6)
-        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
-            return mv
-        v = mv
-    return v
-
-
 def test_leading_eigenvector_is_the_dense_power_iteration():
     """Up to float32 rounding (the sums run in another order), stopped at the same step: a
     problem that settles early, and one that does not within the iterations."""
     for inliers, outliers, iterations in ((60, 540, 10), (300, 300, 40), (20, 580, 3)):
         src, tgt = clique_problem(seed=4, inliers=inliers, outliers=outliers)
         compatible = compatibility(src, tgt, 0.2)
-        expected = _dense_power_iteration(dense_soft(compatible), iterations)
+        expected = dense_power_iteration(dense_soft(compatible), iterations)
         v = leading_eigenvector(compatible, iterations)
         assert v.dtype == np.float32
         np.testing.assert_allclose(v, expected, rtol=0, atol=1e-6)

@@ -2,7 +2,7 @@
 import numba
 import numpy as np
 import pytest
-from conftest import dense_soft, load_map_query, random_motion, unpacked
+from conftest import dense_power_iteration, dense_soft, load_map_query, random_motion, unpacked
 from scipy.spatial.distance import cdist
 
 from regor_ros.core import RegorConfig, kernels, prepare_cloud, register, warm_up
@@ -217,19 +217,6 @@ def test_numpy_blas_runs_on_one_thread_during_registrations_and_is_restored():
     assert _blas_threads() == before
 
 
-def _batched_power_iteration(matrix, iterations):
-    """Power iteration from ones over a batch of matrices, stopping for the whole batch when every
-    vector has settled (SC2-PCR's numpy expression)."""
-    v = np.ones(matrix.shape[:-1], dtype=matrix.dtype)
-    for _ in range(iterations):
-        mv = (matrix @ v[..., None])[..., 0]
-        mv /= np.linalg.norm(mv, axis=-1, keepdims=True) + 1e-6
-        if np.allclose(mv, v, rtol=1e-5, atol=1e-8):
-            return mv
-        v = mv
-    return v
-
-
 def _seed_consensus_numpy(first, hard, soft, k2, iterations):
     """SC2-PCR++'s second stage and local spectral weights as numpy expressions (what
     seed_consensus replaced), on dense hard and soft matrices."""
@@ -240,7 +227,7 @@ def _seed_consensus_numpy(first, hard, soft, k2, iterations):
     local = soft[second[:, :, None], second[:, None, :]].copy()
     diag = np.arange(k2)
     local[:, diag, diag] = 0.0
-    return second, _batched_power_iteration(local, iterations)
+    return second, dense_power_iteration(local, iterations)
 
 
 @pytest.mark.parametrize("k1, k2, iterations", [(20, 10, 10), (40, 30, 10), (12, 12, 1), (20, 10, 0)])

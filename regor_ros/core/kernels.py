@@ -158,9 +158,20 @@ def _soft(source, target, heights, threshold, slack, use_heights, d2, i, j):
 
 
 @njit(inline="always")
-def _lowest_bit(word):
-    """The position of the lowest set bit of a nonzero uint64."""
-    return np.int64(_popcount((word & (~word + np.uint64(1))) - np.uint64(1)))
+def _set_columns(bits, i, first, out):
+    """The set columns of row i of a packed boolean matrix from column ``first`` on, ascending,
+    into ``out``; how many. A word's set bits are taken lowest first (the lowest's position is the
+    count of the bits below it), so a sparse row costs its set bits, not its width."""
+    count = 0
+    for w in range(first // WORD, bits.shape[1]):
+        word = bits[i, w]
+        if w == first // WORD:
+            word &= ~((np.uint64(1) << np.uint64(first % WORD)) - np.uint64(1))
+        while word:
+            out[count] = w * WORD + np.int64(_popcount((word & (~word + np.uint64(1))) - np.uint64(1)))
+            word &= word - np.uint64(1)
+            count += 1
+    return count
 
 
 @njit(parallel=True, **JIT)
@@ -195,15 +206,9 @@ def compatibility_matrices(source, target, threshold, heights, slack, use_height
     columns = np.empty(starts[n], dtype=np.int32)
     values = np.empty(starts[n], dtype=np.float32)
     for i in prange(n):  # the residuals again, of the compatible pairs only
-        at = starts[i]
-        for w in range(words):
-            word = hard[i, w]
-            while word:
-                j = w * WORD + _lowest_bit(word)
-                word &= word - np.uint64(1)
-                columns[at] = j
-                values[at] = _soft(source, target, heights, threshold, slack, use_heights, d2, i, j)
-                at += 1
+        _set_columns(hard, i, 0, columns[starts[i]:starts[i + 1]])
+        for at in range(starts[i], starts[i + 1]):
+            values[at] = _soft(source, target, heights, threshold, slack, use_heights, d2, i, columns[at])
     return starts, columns, values, hard, tight
 
 
@@ -248,12 +253,6 @@ def sparse_leading_eigenvector(starts, columns, values, iterations):
         if settled:
             break
     return v
-
-
-@njit(inline="always")
-def _bit(bits, i, j):
-    """Whether column j of row i of a packed boolean matrix is set."""
-    return (bits[i, j >> 6] >> np.uint64(j & 63)) & np.uint64(1) != 0
 
 
 @njit(inline="always")
@@ -368,9 +367,9 @@ def seed_consensus(first, hard, source, target, threshold, heights, slack, use_h
     for s in prange(seeds):
         members = first[s]
         for m in range(k1):
-            if _bit(hard, members[0], members[m]):
+            if _flagged(hard[members[0]], members[m]):
                 for j in range(k1):
-                    if _bit(hard, members[m], members[j]):
+                    if _flagged(hard[members[m]], members[j]):
                         scores[s, j] += 1
         _top_k_into(scores[s], k2, tops[s])
         for i in range(k2):
@@ -460,18 +459,13 @@ def triangle_scores(source, target, threshold, runs):
     # the same whatever the runs
     partial = np.zeros((runs, n), dtype=np.int64)
     for run in prange(runs):
+        beyond = np.empty(n, dtype=np.int64)
         for i in range(run, n, runs):
             total = _common(bits, i, i)
-            for w in range(i // WORD, bits.shape[1]):  # the row's set bits beyond i, lowest first
-                word = bits[i, w]
-                if w == i // WORD:
-                    word &= ~((np.uint64(2) << np.uint64(i % WORD)) - np.uint64(1))
-                while word:
-                    j = w * WORD + _lowest_bit(word)
-                    word &= word - np.uint64(1)
-                    both = _common(bits, i, j)
-                    total += both
-                    partial[run, j] += both
+            for m in range(_set_columns(bits, i, i + 1, beyond)):
+                both = _common(bits, i, beyond[m])
+                total += both
+                partial[run, beyond[m]] += both
             partial[run, i] += total
     return partial.sum(axis=0)
 
