@@ -68,17 +68,19 @@ def test_results_do_not_depend_on_the_thread_count():
 
 def test_verified_candidates_is_the_numpy_expression():
     rng = np.random.default_rng(3)
-    moved = rng.uniform(-1, 1, size=(300, 3)).astype(np.float32)
-    planes = (moved.T[:, :, None] + rng.normal(0, 0.2, size=(3, 300, 20))).astype(np.float32)
+    moved = rng.uniform(-1, 1, size=(4, 300, 3)).astype(np.float32)   # four poses' moved keypoints
+    planes = (moved[0].T[:, :, None] + rng.normal(0, 0.2, size=(3, 300, 20))).astype(np.float32)
     distance = rng.uniform(0, 1, size=(300, 20)).astype(np.float32)
     distance[:, 5] = distance[:, 4]  # ties go to the first
     near2, far2 = np.float32(0.1 ** 2), np.float32(0.15 ** 2)
-    e2 = sum((planes[c] - moved[:, c, None]) ** 2 for c in range(3))
-    best = np.argmin(distance + 2.0 * (e2 > far2), axis=1)
     verified, got_best, residual = kernels.verified_candidates(moved, planes, distance, near2, far2)
-    np.testing.assert_array_equal(verified, e2.min(axis=1) <= near2)
-    np.testing.assert_array_equal(got_best, best)
-    np.testing.assert_array_equal(residual, e2[np.arange(300), best])
+    for pose in range(4):
+        e2 = sum((planes[c] - moved[pose, :, c, None]) ** 2 for c in range(3))
+        best = np.argmin(distance + 2.0 * (e2 > far2), axis=1)
+        np.testing.assert_array_equal(verified[pose], e2.min(axis=1) <= near2)
+        np.testing.assert_array_equal(got_best[pose], best)
+        np.testing.assert_array_equal(residual[pose], e2[np.arange(300), best])
+    assert verified[0].any() and not verified[0].all()
 
 
 def _numpy_bins(offsets, step, cols):

@@ -99,19 +99,26 @@ def candidate_support(transforms: np.ndarray, source_points: np.ndarray,
                                  np.ascontiguousarray(candidate_points[:, rows]), np.float32(threshold ** 2))
 
 
-def fs_tcd_fitness(T: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
-                   candidate_distance: np.ndarray, cfg: InitialConfig,
-                   rng: np.random.Generator):
-    """FS-TCD score of a pose: re-match every source keypoint to its most feature-similar
-    candidate lying near its warped position, then count the largest set of these verified
-    matches that agree in length with one of them. Returns (fitness, verified src, verified tgt)."""
+def fs_tcd_fitness(poses: np.ndarray, source_points: np.ndarray, candidate_points: np.ndarray,
+                   candidate_distance: np.ndarray, cfg: InitialConfig, rng: np.random.Generator) -> list:
+    """FS-TCD score of each of a batch of poses (b, 4, 4): re-match every source keypoint to its
+    most feature-similar candidate lying near its warped position, then count the largest set of
+    these verified matches that agree in length with one of them. [(fitness, verified src,
+    verified tgt)], one per pose, the poses' random draws in their order."""
     tau = cfg.inlier_threshold
-    moved = transform_points(T, source_points).astype(np.float32)
+    moved = np.stack([transform_points(T, source_points) for T in poses]).astype(np.float32)
     verified, best, residual = kernels.verified_candidates(moved, candidate_points, candidate_distance,
                                                            np.float32(tau ** 2), np.float32((1.5 * tau) ** 2))
-    if not verified.any():
+    return [_length_agreement(np.flatnonzero(v), b, r, source_points, candidate_points, cfg, rng)
+            for v, b, r in zip(verified, best, residual, strict=True)]
+
+
+def _length_agreement(rows: np.ndarray, best: np.ndarray, residual: np.ndarray, source_points: np.ndarray,
+                      candidate_points: np.ndarray, cfg: InitialConfig, rng: np.random.Generator):
+    """One pose's FS-TCD score from its verified ``rows`` (their best candidates and residuals
+    given for every row): (fitness, verified src, verified tgt)."""
+    if not len(rows):
         return 0, source_points[:0], source_points[:0]
-    rows = np.flatnonzero(verified)
     best = best[rows]
     vp = source_points[rows]
     vq = candidate_points[:, rows, best].T.astype(np.float64)
@@ -199,24 +206,30 @@ def initial_stage(src: np.ndarray, tgt: np.ndarray, source: PreparedCloud, targe
     ranked = top_k_stable(scores, cfg.num_hypotheses)
     kept: list = []
     fitnesses: list = []
-    refine_src, refine_tgt = src, tgt
     tolerance = DEDUPE_TRANSLATION_FRACTION * cfg.inlier_threshold
-    # one refinement step each, all at once (the quirk refines each on the previous one's matches)
-    refined = None if cfg.reproduce_fs_tcd_quirk else post_refine_all(hypotheses[ranked], src, tgt,
-                                                                      cfg.refine_threshold, 1, clamp)
-    for at, h in enumerate(ranked):
-        T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp) \
-            if refined is None else refined[at]
-        if cfg.dedupe_hypotheses and _near_any(T, kept, DEDUPE_ANGLE_DEG, tolerance):
-            continue
-        kept.append(T)
-        fitness, verified_src, verified_tgt = fs_tcd_fitness(
-            shift @ T, candidate_sources, candidate_points,
-            matches.candidate_distance, cfg, rng)
-        verified_tgt = verified_tgt + origin
-        if cfg.reproduce_fs_tcd_quirk and len(verified_src) >= 3:
-            refine_src, refine_tgt = verified_src, verified_tgt
-        fitnesses.append(fitness)
+
+    def score(poses: list) -> list:
+        return fs_tcd_fitness(np.array([shift @ T for T in poses]), candidate_sources, candidate_points,
+                              matches.candidate_distance, cfg, rng)
+
+    if cfg.reproduce_fs_tcd_quirk:
+        # each hypothesis refined on the previous one's verified matches: one at a time
+        refine_src, refine_tgt = src, tgt
+        for h in ranked:
+            T = post_refine(hypotheses[h], refine_src, refine_tgt, cfg.refine_threshold, 1, clamp)
+            if cfg.dedupe_hypotheses and _near_any(T, kept, DEDUPE_ANGLE_DEG, tolerance):
+                continue
+            kept.append(T)
+            ((fitness, verified_src, verified_tgt),) = score([T])
+            if len(verified_src) >= 3:
+                refine_src, refine_tgt = verified_src, verified_tgt + origin
+            fitnesses.append(fitness)
+    else:
+        # one refinement step each, all at once, and FS-TCD on every distinct one at once
+        for T in post_refine_all(hypotheses[ranked], src, tgt, cfg.refine_threshold, 1, clamp):
+            if not (cfg.dedupe_hypotheses and _near_any(T, kept, DEDUPE_ANGLE_DEG, tolerance)):
+                kept.append(T)
+        fitnesses = [fitness for fitness, _, _ in score(kept)] if kept else []
     T_fs = _fittest(kept, fitnesses, plausible) if kept else most_inliers()
 
     T_m = post_refine(T_fs, src, tgt, cfg.refine_threshold, 20, clamp)

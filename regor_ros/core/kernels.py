@@ -533,44 +533,51 @@ def _largest(values):
 
 @njit(parallel=True, **JIT)
 def verified_candidates(moved, planes, feature_distance, near2, far2):
-    """FS-TCD's re-matching of each source keypoint (``moved``, float32) among its K candidates
-    (``planes``: x, y, z (3, N, K) float32): (verified: one candidate within the squared
-    ``near2``; the candidate of least cost, its feature distance plus 2 when farther than the
-    squared ``far2``, the first on ties; that candidate's squared distance)."""
-    rows, k = planes.shape[1], planes.shape[2]
-    verified = np.zeros(rows, dtype=np.bool_)
-    best = np.zeros(rows, dtype=np.int64)
-    residual = np.zeros(rows, dtype=np.float32)
+    """FS-TCD's re-matching of each source keypoint among its K candidates (``planes``: x, y, z
+    (3, N, K) float32) under each of a batch of poses (``moved``: the keypoints each pose moves,
+    (b, N, 3) float32): (verified: one candidate within the squared ``near2``; the candidate of
+    least cost, its feature distance plus 2 when farther than the squared ``far2``, the first on
+    ties; that candidate's squared distance), each (b, N). A keypoint's candidates are read once
+    for every pose: they, not the arithmetic, were the cost of one pose at a time."""
+    poses, rows, k = moved.shape[0], planes.shape[1], planes.shape[2]
+    verified = np.zeros((poses, rows), dtype=np.bool_)
+    best = np.zeros((poses, rows), dtype=np.int64)
+    residual = np.zeros((poses, rows), dtype=np.float32)
     for i in prange(rows):
-        x, y, z = moved[i, 0], moved[i, 1], moved[i, 2]
         xs, ys, zs = planes[0, i], planes[1, i], planes[2, i]
         e2 = np.empty(k, dtype=np.float32)
         cost = np.empty(k)
-        near = 0
-        for c in range(k):  # SIMD: no early exit, no running argmin
-            e2[c] = _squared_distance(xs, ys, zs, c, x, y, z)
-            near += e2[c] <= near2
-            cost[c] = np.float64(feature_distance[i, c]) + (2.0 if e2[c] > far2 else 0.0)
-        lowest = _smallest(cost)
-        c = 0
-        while c < k - 1 and cost[c] != lowest:
-            c += 1
-        verified[i], best[i], residual[i] = near > 0, c, e2[c]
+        for s in range(poses):
+            x, y, z = moved[s, i, 0], moved[s, i, 1], moved[s, i, 2]
+            near = 0
+            for c in range(k):  # SIMD: no early exit, no running argmin
+                e2[c] = _squared_distance(xs, ys, zs, c, x, y, z)
+                near += e2[c] <= near2
+                cost[c] = np.float64(feature_distance[i, c]) + (2.0 if e2[c] > far2 else 0.0)
+            lowest = _smallest(cost)
+            c = 0
+            while c < k - 1 and cost[c] != lowest:
+                c += 1
+            verified[s, i], best[s, i], residual[s, i] = near > 0, c, e2[c]
     return verified, best, residual
 
 
 @njit(parallel=True, **JIT)
 def most_length_agreement(source, target, rows, threshold):
     """max over ``rows`` i of #{j : ||a_i - a_j| - |b_i - b_j|| < threshold}: FS-TCD's largest
-    set of verified matches agreeing in length with one of them."""
+    set of verified matches agreeing in length with one of them. (Each coordinate in its own
+    contiguous array: the loop over j ran in SIMD lanes then, and not over _rows' (3, n).)"""
     n = source.shape[0]
-    source, target = _rows(source), _rows(target)
+    ax, ay, az = source[:, 0].copy(), source[:, 1].copy(), source[:, 2].copy()
+    bx, by, bz = target[:, 0].copy(), target[:, 1].copy(), target[:, 2].copy()
     counts = np.zeros(len(rows), dtype=np.int64)
     for m in prange(len(rows)):
         i = rows[m]
         total = 0
         for j in range(n):
-            total += _residual(source, target, i, j) < threshold
+            dx, dy, dz = ax[i] - ax[j], ay[i] - ay[j], az[i] - az[j]
+            ex, ey, ez = bx[i] - bx[j], by[i] - by[j], bz[i] - bz[j]
+            total += abs(np.sqrt(dx * dx + dy * dy + dz * dz) - np.sqrt(ex * ex + ey * ey + ez * ez)) < threshold
         counts[m] = total
     return counts.max() if len(rows) else 0
 
@@ -1703,8 +1710,8 @@ def warm_up() -> None:
         generalized_mutual_pairs(np.random.default_rng(0).random((2, 4, 5)).astype(np.float32), 3)
         landed_counts(np.zeros((2, 3, 3)), np.zeros((2, 3)), np.zeros((8, 3)), np.zeros((3, 8, 4), np.float32),
                       np.float32(0.01))
-        verified_candidates(np.zeros((8, 3), np.float32), np.zeros((3, 8, 4), np.float32), np.zeros((8, 4), np.float32),
-                            np.float32(0.01), np.float32(0.02))
+        verified_candidates(np.zeros((2, 8, 3), np.float32), np.zeros((3, 8, 4), np.float32),
+                            np.zeros((8, 4), np.float32), np.float32(0.01), np.float32(0.02))
         most_length_agreement(points, points, np.arange(3, dtype=np.int64), 0.05)
         fixed_pairs_moments(np.eye(3)[None], np.zeros((1, 3)), points, points, 0.1)
         plane_step_system(points, np.zeros(8), np.zeros(8, np.int64), points, points, 0.1)
