@@ -41,9 +41,9 @@ for entry in json.loads(sample.read_text()):
                       prepare_cloud(target, config, "target", viewpoint=ORIGIN), config)
     seconds = time.perf_counter() - start
     truth = np.asarray(entry["T"])
-    correct = rotation_error_deg(result.transform, truth) < 15 and translation_error(result.transform, truth) < 0.3
-    rows.append({"name": entry["name"], "bench": entry["bench"], "ok": bool(correct),
-                 "acc": bool(result.accepted), "t": seconds})
+    rotation, translation = rotation_error_deg(result.transform, truth), translation_error(result.transform, truth)
+    rows.append({"name": entry["name"], "bench": entry["bench"], "ok": bool(rotation < 15 and translation < 0.3),
+                 "acc": bool(result.accepted), "t": seconds, "re": float(rotation), "te": float(translation)})
 out_path.write_text(json.dumps(rows))
 for bench in ("3DMatch", "3DLoMatch"):
     group = [r for r in rows if r["bench"] == bench]
