@@ -160,7 +160,7 @@ def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",
     del parts, points   # a map's raw points: not needed past here, and a copy of them is 45 MB a million
     keypoints = np.asarray(down.points, dtype=np.float64)
     toward = config.normals_toward_sensors and may_face_sensors and sensors is not None and len(sensors) > 0
-    if toward:
+    if toward and sensors is not None:
         normals = facing_normals(keypoints, sensors, config.normal_radius, config.normal_max_nn)
     else:   # the solver's signs
         down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
