@@ -3,7 +3,7 @@ import pytest
 from conftest import DATA, moved_pair, require_shared_data
 
 from regor_ros.core import RegistrationError, RegorConfig, for_clouds_seen_from, prepare_cloud, register
-from regor_ros.core.features import facing_normals, largest_plane
+from regor_ros.core.features import largest_plane, map_normals, toward_nearest
 from regor_ros.core.metrics import is_success
 from regor_ros.tools.map_benchmark import load_sequence
 
@@ -79,40 +79,40 @@ def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
     np.testing.assert_array_equal(slabs, whole)
 
 
-def test_normals_face_the_nearest_sensor():
-    """A floor seen from above on one side and from below on the other faces both ways."""
+def test_normals_are_turned_toward_the_nearest_sensor():
+    """Whatever sign the solver gave, each normal ends up facing the sensor nearest to its point."""
+    rng = np.random.default_rng(3)
+    points = np.c_[rng.uniform(-5, 5, (400, 2)), np.zeros(400)]   # a floor at z = 0
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1)) * rng.choice([-1.0, 1.0], (400, 1))
+    sensors = np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]])      # one above the left half, one below the right
+    turned = toward_nearest(normals, points, sensors)
+    left = points[:, 0] < 0
+    assert (turned[left, 2] == 1.0).all() and (turned[~left, 2] == -1.0).all()
+
+
+def test_a_map_s_compiled_normals_are_open3d_s_facing_its_trajectory():
+    """A map's normals are computed on every core, not by Open3D (one core), but they must stay the
+    normals everything was measured with: Open3D's least spread of the same neighbourhoods, turned
+    toward the nearest trajectory position, to rounding; and a floor seen from above on one side
+    and from below on the other faces both ways."""
+    import open3d as o3d
+    require_shared_data("the Avia map")
+    from regor_ros.core.map_view import trajectory_positions
+    cloud, trajectory, _ = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
+    cfg = RegorConfig.preset("outdoor").features
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud)).voxel_down_sample(cfg.voxel_size)
+    points, sensors = np.asarray(down.points), trajectory_positions(trajectory)
+    ours = map_normals(points, sensors, cfg.normal_radius, cfg.normal_max_nn)
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_radius, max_nn=cfg.normal_max_nn))
+    theirs = toward_nearest(np.asarray(down.normals), points, sensors)
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-12)
+    assert ((ours * theirs).sum(axis=1) > np.cos(np.radians(1e-3))).all()
     rng = np.random.default_rng(3)
     floor = np.c_[rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)]
-    faced = facing_normals(floor, np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]]), 0.5, 30)
+    faced = map_normals(floor, np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]]), 0.5, 30)
     left = floor[:, 0] < 0
     np.testing.assert_allclose(np.abs(faced[:, 2]), 1.0)
     assert (faced[left, 2] > 0).all() and (faced[~left, 2] < 0).all()
-
-
-@pytest.mark.parametrize("cloud", ["the Avia map", "a 3DMatch fragment"])
-def test_compiled_normals_are_open3d_s_facing_the_sensors(cloud):
-    """Normals are computed on every core, not by Open3D (one core), but they must stay the
-    normals everything was measured with: Open3D's least spread of the same neighbourhoods, turned
-    toward the nearest sensor position, to rounding; for a map (its trajectory) and a scan (its
-    viewpoint) alike."""
-    import open3d as o3d
-    require_shared_data(cloud)
-    if cloud == "the Avia map":
-        from regor_ros.core.map_view import trajectory_positions
-        points, trajectory, _ = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
-        cfg, sensors = RegorConfig.preset("outdoor").features, trajectory_positions(trajectory)
-    else:
-        points = np.load(DATA / "threedmatch" / "7-scenes-redkitchen" / "0.npy")
-        cfg, sensors = RegorConfig.preset("indoor").features, np.zeros((1, 3))
-    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).voxel_down_sample(cfg.voxel_size)
-    points = np.asarray(down.points)
-    ours = facing_normals(points, sensors, cfg.normal_radius, cfg.normal_max_nn)
-    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.normal_radius, max_nn=cfg.normal_max_nn))
-    theirs = np.asarray(down.normals)
-    toward = sensors[np.argmin(((points[:, None] - sensors[None]) ** 2).sum(axis=2), axis=1)] - points
-    theirs = np.where(((theirs * toward).sum(axis=1) < 0)[:, None], -theirs, theirs)
-    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), 1.0, atol=1e-12)
-    assert ((ours * theirs).sum(axis=1) > np.cos(np.radians(1e-3))).all()
 
 
 def test_a_revisit_seen_from_the_other_way_is_found_once_normals_face_the_sensors():
