@@ -2,9 +2,12 @@
 same CSV of the other, row by row, every column but the timings and the peak memory (which a
 machine's load moves). For a change that must not move a verdict, a pose or a figure; with
 ``--tolerance REL``, for one that sums in another order: numbers within REL of each other (relative)
-count as the same, and the largest relative difference is printed.
+count as the same, and the largest relative difference is printed. With ``--verdicts``, for a
+change that may move poses: each method's tally (runs, correct, published correct, published
+wrong) before and after, and every run whose verdict moved, matched by its name, not its row.
 
-Usage: python lab/compare_runs.py [--tolerance REL] BEFORE_DIR AFTER_DIR   (exit 1 when any row differs)
+Usage: python lab/compare_runs.py [--tolerance REL | --verdicts] BEFORE_DIR AFTER_DIR
+(exit 1 when any row differs; with --verdicts, when any verdict does)
 """
 import argparse
 import csv
@@ -49,14 +52,52 @@ def differences(before: Path, after: Path, tolerance: float, largest: list) -> d
     return counts
 
 
+RUN = ("bench", "seed", "pair", "map", "query", "input", "method")   # the columns that name a run
+
+
+def verdict(row: dict) -> str:
+    return ("correct" if row["success"] == "True" else "wrong") + (", published" if row["accepted"] == "True"
+                                                                    else ", withheld")
+
+
+def tally(rows: list[dict]) -> str:
+    correct = sum(r["success"] == "True" for r in rows)
+    published = sum(r["success"] == "True" and r["accepted"] == "True" for r in rows)
+    wrong = sum(r["success"] != "True" and r["accepted"] == "True" for r in rows)
+    return f"{len(rows)} runs, {correct} correct, {published} published correct, {wrong} published wrong"
+
+
+def verdict_changes(before: Path, after: Path) -> tuple[list[str], int]:
+    """(each method's tally before -> after, then every run in both whose verdict moved; how many
+    moved)."""
+    if not after.exists():
+        return ["  (no such file)"], 1
+    old, new = ({tuple(r.get(c, "") for c in RUN): r for r in csv.DictReader(p.open())} for p in (before, after))
+    lines = [f"  {m}: {tally([r for k, r in old.items() if k[-1] == m])} -> "
+             f"{tally([r for k, r in new.items() if k[-1] == m])}" for m in sorted({k[-1] for k in old})]
+    moved = [key for key in sorted(old.keys() & new.keys()) if verdict(old[key]) != verdict(new[key])]
+    for key in moved:
+        a, b = old[key], new[key]
+        why = f" ({b['failed_check']})" if b["accepted"] != "True" and b.get("failed_check") else ""
+        lines.append(f"  {' '.join(part for part in key if part)}: {verdict(a)} -> {verdict(b)}{why}; "
+                     f"{float(a['rotation_error_deg']):.1f} -> {float(b['rotation_error_deg']):.1f} deg")
+    return lines, len(moved)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("before", type=Path)
     parser.add_argument("after", type=Path)
     parser.add_argument("--tolerance", type=float, default=0.0, help="relative difference two numbers may have")
+    parser.add_argument("--verdicts", action="store_true", help="compare verdicts, not figures")
     args = parser.parse_args()
     same = True
     for path in sorted(args.before.rglob("*.csv")):
+        if args.verdicts:
+            lines, moved = verdict_changes(path, args.after / path.relative_to(args.before))
+            same &= not moved
+            print(f"{path.relative_to(args.before)}:", *lines, sep="\n")
+            continue
         rows = sum(1 for _ in path.open()) - 1
         largest = [0.0]
         diff = differences(path, args.after / path.relative_to(args.before), args.tolerance, largest)
