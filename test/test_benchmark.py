@@ -183,6 +183,15 @@ def test_a_seed_the_pairs_would_not_use_is_refused(mode, tmp_path, capsys):
     assert "--set seed has no effect" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("mode", [["--threedmatch"], ["--maps"], ["--profile"]])
+def test_a_motion_the_run_would_not_apply_is_refused(mode, tmp_path, capsys):
+    """Only the pairs run moves its sources: under the lists, the maps or the profile a --rotate
+    would be dropped without a word, and a run meant under another motion would repeat the last."""
+    with pytest.raises(SystemExit):
+        main([*mode, str(tmp_path), "--rotate", "1", "--out", str(tmp_path / "out")])
+    assert "--rotate moves the sources of a run over folders of pairs" in capsys.readouterr().err
+
+
 def test_without_viewpoints_no_free_space_is_measured_and_the_report_says_so(tmp_path, capsys):
     folder = pair_folder(tmp_path, TWO[:1])
     out = tmp_path / "out"

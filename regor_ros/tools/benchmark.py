@@ -41,8 +41,12 @@ def main(argv=None) -> int:
     if any(item.split("=", 1)[0].strip() == "seed" for item in args.set) and instead in (None, "--threedmatch") \
             and not (args.profile or args.verify):
         # each pair's registration is seeded with its motion's seed (0 without --rotate): refused, not ignored
-        parser.error("--set seed has no effect on pairs and --threedmatch, whose registrations take their "
-                     "motion's seed (--rotate SEED ...; 0 without); it applies with --maps")
+        parser.error("--set seed has no effect on pairs and --threedmatch: a pair's registration takes its "
+                     "motion's seed (--rotate SEED ...; 0 without), a list's 0; it applies with --maps")
+    if args.rotate and (instead or args.profile or args.verify):
+        # only the pairs run moves its sources: a run meant under another motion would repeat this one
+        parser.error(f"--rotate moves the sources of a run over folders of pairs; "
+                     f"{instead or ('--profile' if args.profile else '--verify')} registers them as they are")
     if (args.stress or args.narrow) and (args.profile or args.verify or instead != "--maps"):
         parser.error("--stress and --narrow change the queries of a --maps run")
     if args.stress and args.narrow:
