@@ -88,8 +88,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("before", type=Path)
     parser.add_argument("after", type=Path)
-    parser.add_argument("--tolerance", type=float, default=0.0, help="relative difference two numbers may have")
-    parser.add_argument("--verdicts", action="store_true", help="compare verdicts, not figures")
+    compared = parser.add_mutually_exclusive_group()
+    compared.add_argument("--tolerance", type=float, default=0.0, help="relative difference two numbers may have")
+    compared.add_argument("--verdicts", action="store_true", help="compare verdicts, not figures")
     args = parser.parse_args()
     same = True
     for path in sorted(args.before.rglob("*.csv")):

@@ -537,8 +537,8 @@ def verified_candidates(moved, planes, feature_distance, near2, far2):
     (3, N, K) float32) under each of a batch of poses (``moved``: the keypoints each pose moves,
     (b, N, 3) float32): (verified: one candidate within the squared ``near2``; the candidate of
     least cost, its feature distance plus 2 when farther than the squared ``far2``, the first on
-    ties; that candidate's squared distance), each (b, N). A keypoint's candidates are read once
-    for every pose: they, not the arithmetic, were the cost of one pose at a time."""
+    ties; that candidate's squared distance), each (b, N). One parallel launch for every pose, not
+    one each: beside a busy process each launch waits for its threads to be scheduled."""
     poses, rows, k = moved.shape[0], planes.shape[1], planes.shape[2]
     verified = np.zeros((poses, rows), dtype=np.bool_)
     best = np.zeros((poses, rows), dtype=np.int64)
@@ -565,19 +565,15 @@ def verified_candidates(moved, planes, feature_distance, near2, far2):
 @njit(parallel=True, **JIT)
 def most_length_agreement(source, target, rows, threshold):
     """max over ``rows`` i of #{j : ||a_i - a_j| - |b_i - b_j|| < threshold}: FS-TCD's largest
-    set of verified matches agreeing in length with one of them. (Each coordinate in its own
-    contiguous array: the loop over j ran in SIMD lanes then, and not over _rows' (3, n).)"""
+    set of verified matches agreeing in length with one of them."""
     n = source.shape[0]
-    ax, ay, az = source[:, 0].copy(), source[:, 1].copy(), source[:, 2].copy()
-    bx, by, bz = target[:, 0].copy(), target[:, 1].copy(), target[:, 2].copy()
+    source, target = _rows(source), _rows(target)
     counts = np.zeros(len(rows), dtype=np.int64)
     for m in prange(len(rows)):
         i = rows[m]
         total = 0
         for j in range(n):
-            dx, dy, dz = ax[i] - ax[j], ay[i] - ay[j], az[i] - az[j]
-            ex, ey, ez = bx[i] - bx[j], by[i] - by[j], bz[i] - bz[j]
-            total += abs(np.sqrt(dx * dx + dy * dy + dz * dz) - np.sqrt(ex * ex + ey * ey + ez * ez)) < threshold
+            total += _residual(source, target, i, j) < threshold
         counts[m] = total
     return counts.max() if len(rows) else 0
 
