@@ -67,15 +67,17 @@ def test_the_exact_search_refills_a_list_whose_sampled_floor_left_fewer_than_k()
     """The rows that set a list's starting floor (every FLOOR_STRIDE-th) are all the queries'
     best and equal, so the floor is the best similarity and no row passes it: each list is filled
     again from its tile's products, and the K candidates are still the full product's, ties to
-    the lower row."""
+    the lower row, the first of them each query's nearest."""
     rng = np.random.default_rng(7)
     data = rng.integers(0, 3, (2000, 33)).astype(np.float32)
     data[::kernels.FLOOR_STRIDE] = 3.0
     queries = rng.integers(0, 3, (300, 33)).astype(np.float32)
     rows = np.arange(0, 300, 3)
     product = queries @ data.T
-    _, _, candidates, candidate_similarity, _ = FeatureIndex(data, 2000, 1, 1).nearest_and_candidates(
+    nearest, similarity, candidates, candidate_similarity, _ = FeatureIndex(data, 2000, 1, 1).nearest_and_candidates(
         queries, rows, 20)
+    np.testing.assert_array_equal(nearest, product.argmax(1))
+    np.testing.assert_array_equal(similarity, product.max(1))
     ranked = np.array([np.lexsort((np.arange(2000), -row))[:20] for row in product[rows]])
     np.testing.assert_array_equal(candidates, ranked)
     np.testing.assert_array_equal(candidates[:, :5], np.tile(np.arange(5) * kernels.FLOOR_STRIDE, (len(rows), 1)))

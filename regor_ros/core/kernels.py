@@ -995,7 +995,8 @@ def flat_search(queries, table, slot, k, columns, chunks):
     query order, so the result does not depend on ``chunks``. A query's top-k list starts with a
     floor sampled from its tile's products with every FLOOR_STRIDE-th row (``_sampled_floor``);
     a list left with fewer than k is filled again from no floor, from its tile's products
-    computed again (the same products to the last bit)."""
+    computed again (the same products to the last bit). A query with a list reads its most
+    similar row off the list's first, so only the others scan each tile for their largest."""
     n_queries, n_rows = len(queries), len(table)
     n_slots = 0
     for q in range(n_queries):
@@ -1027,14 +1028,15 @@ def flat_search(queries, table, slot, k, columns, chunks):
                 dots = np.dot(queries[q0:q1], table[r0:r1].T)
                 for a in range(q1 - q0):
                     q, dot = q0 + a, dots[a]
-                    top = _largest(dot)
-                    if top > nearest_similarity[q]:  # an equal one in a later tile is never better
-                        at = 0
-                        while dot[at] != top:
-                            at += 1
-                        nearest_similarity[q], nearest[q] = top, r0 + at
-                    if slot[q] >= 0:
+                    if slot[q] >= 0:  # its list's first is its nearest (below)
                         _offer_to_list(lists[slot[q]], held, floor, slot[q], k, dot, r0, passed)
+                    else:
+                        top = _largest(dot)
+                        if top > nearest_similarity[q]:  # an equal one in a later tile is never better
+                            at = 0
+                            while dot[at] != top:
+                                at += 1
+                            nearest_similarity[q], nearest[q] = top, r0 + at
                     if columns:  # queries ascend within a run: an equal one later is never better
                         best_of_row, query_of_row = column_best[c, r0:r1], column_query[c, r0:r1]
                         for j in range(r1 - r0):
@@ -1054,6 +1056,9 @@ def flat_search(queries, table, slot, k, columns, chunks):
     candidate_similarity = np.empty((n_slots, k), np.float32)
     for s in prange(n_slots):
         _unpack_best(lists[s], candidates[s], candidate_similarity[s])
+    for q in prange(n_queries):  # the most similar, ties to the lower position: as the scan above
+        if slot[q] >= 0:
+            nearest[q], nearest_similarity[q] = candidates[slot[q], 0], candidate_similarity[slot[q], 0]
     row_query = np.full(n_rows if columns else 0, -1, np.int64)
     row_similarity = np.full(n_rows if columns else 0, -np.inf, np.float32)
     for j in prange(len(row_query)):
