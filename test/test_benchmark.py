@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import DATA, PAIRS, require_shared_data
 
+from regor_ros.core import ORIGIN, RegorConfig, for_clouds_seen_from, prepare_cloud, register, rotation_error_deg
 from regor_ros.tools.benchmark import main
 from regor_ros.tools.pairs_benchmark import summarise
 
@@ -174,13 +175,33 @@ def test_an_argument_the_mode_would_not_read_is_refused(mode, tmp_path, capsys):
     assert "each override needs its own --set" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("mode", [[], ["--threedmatch"]])
-def test_a_seed_the_pairs_would_not_use_is_refused(mode, tmp_path, capsys):
-    """Pairs and the lists seed each registration with its motion's seed: a --set seed would be
-    overwritten without a word, and a run meant as another draw would repeat the last one."""
+def test_a_seed_the_pairs_would_not_use_is_refused(tmp_path, capsys):
+    """Pairs seed each registration with its motion's seed: a --set seed would be overwritten
+    without a word, and a run meant as another draw would repeat the last one."""
     with pytest.raises(SystemExit):
-        main([*mode, str(tmp_path), "--set", "seed=3", "--out", str(tmp_path / "out")])
+        main([str(tmp_path), "--set", "seed=3", "--out", str(tmp_path / "out")])
     assert "--set seed has no effect" in capsys.readouterr().err
+
+
+def test_the_lists_take_a_seed_and_say_which(tmp_path):
+    """--set seed=N seeds the lists' registrations with N (0 without), as the library seeds a
+    registration with it: another draw of the same lists, the seed in its CSV rows and report."""
+    folder, entries = threedmatch_folder(tmp_path)
+    name = f"3dmatch_hotel_umd3_{entries[1]['j']}_{entries[1]['i']}"
+    rows = {}
+    for seed in (None, 7):
+        out = tmp_path / f"out{seed}"
+        main(["--threedmatch", str(folder), "--pairs", name, "--methods", "regor", "--out", str(out),
+              *(["--set", f"seed={seed}"] if seed else [])])
+        rows[seed] = next(csv.DictReader(open(out / "threedmatch.csv")))
+        assert f"registrations seeded with {seed or 0}," in (out / "threedmatch.md").read_text()
+    assert rows[None]["seed"] == "" and rows[7]["seed"] == "7"
+    config = for_clouds_seen_from(RegorConfig.preset("indoor").replace({"seed": 7}), ORIGIN, ORIGIN)
+    source, target = (np.load(THREEDMATCH / UMD / f"{entries[1][k]}.npy") for k in "ji")
+    result = register(prepare_cloud(source, config, "source", viewpoint=ORIGIN),
+                      prepare_cloud(target, config, "target", viewpoint=ORIGIN), config)
+    assert float(rows[7]["rotation_error_deg"]) == rotation_error_deg(result.transform, np.array(entries[1]["T"]))
+    assert rows[7]["rotation_error_deg"] != rows[None]["rotation_error_deg"]   # another draw
 
 
 @pytest.mark.parametrize("mode", [["--threedmatch"], ["--maps"], ["--profile"]])

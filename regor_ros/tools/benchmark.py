@@ -38,11 +38,11 @@ def main(argv=None) -> int:
         # a folder it would not read, or an override that lost its --set: refused, not silently dropped
         parser.error(f"{instead} reads no folders of pairs, but {', '.join(map(str, args.data))} was given "
                      "(each override needs its own --set NAME=VALUE)")
-    if any(item.split("=", 1)[0].strip() == "seed" for item in args.set) and instead in (None, "--threedmatch") \
+    if any(item.split("=", 1)[0].strip() == "seed" for item in args.set) and instead is None \
             and not (args.profile or args.verify):
         # each pair's registration is seeded with its motion's seed (0 without --rotate): refused, not ignored
-        parser.error("--set seed has no effect on pairs and --threedmatch: a pair's registration takes its "
-                     "motion's seed (--rotate SEED ...; 0 without), a list's 0; it applies with --maps")
+        parser.error("--set seed has no effect on pairs: a pair's registration takes its motion's seed "
+                     "(--rotate SEED ...; 0 without); it applies with --threedmatch and --maps")
     if args.rotate and (instead or args.profile or args.verify):
         # only the pairs run moves its sources: a run meant under another motion would repeat this one
         parser.error(f"--rotate moves the sources of a run over folders of pairs; "

@@ -8,7 +8,9 @@ fragments are registered as they are. Reported per list: registration recall wit
 thresholds (RE < 15 deg, TE < 30 cm), the poses each method's own gate published, correct and
 wrong, and the gross wrong ones among them (> 20 deg or > 0.6 m: a pose a robot cannot use at all,
 not a near miss of the 3DMatch truth, which is itself loose by a few degrees), and median time.
-``--sample N`` runs a fixed, seeded sample of N pairs (the same pairs for the same N).
+``--sample N`` runs a fixed, seeded sample of N pairs (the same pairs for the same N). Every
+registration is seeded with 0, or with N under ``--set seed=N`` (the CSV's seed column says which):
+the same lists under other seeds show how far a figure moves by chance alone.
 """
 from __future__ import annotations
 
@@ -81,13 +83,13 @@ def as_pair(entry: dict, fragments: Fragments) -> Pair:
 
 
 def entry_rows(entry: dict, fragments: Fragments, methods: list[str], config: RegorConfig,
-               unseen: bool = False) -> list[dict]:
+               unseen: bool = False, seed: int | None = None) -> list[dict]:
     """Every method's row for one listed pair, each with its list (``bench``); ``unseen``: with
-    neither viewpoint given (--no-viewpoints)."""
+    neither viewpoint given (--no-viewpoints); ``seed``: the registrations' (None: 0)."""
     pair = as_pair(entry, fragments)
     if unseen:
         pair = pair.unseen()
-    return [{**row, "bench": entry["bench"]} for row in evaluate_pair(pair, methods, config, None)]
+    return [{**row, "bench": entry["bench"]} for row in evaluate_pair(pair, methods, config, seed)]
 
 
 def gross(row: dict) -> bool:
@@ -169,15 +171,17 @@ def run_threedmatch(args, argv, methods: list[str], parser) -> int:
         parser.error(f"{folder} has no pairs.json (see --help for its format)")
     try:
         entries = load_list(folder, args.sample, args.pairs)
-        config = RegorConfig.preset("indoor").replace(parse_overrides(args.set))
+        overrides = parse_overrides(args.set)
+        config = RegorConfig.preset("indoor").replace(overrides)
     except (ValueError, ConfigError) as exc:
         parser.error(str(exc))
+    seed = config.seed if "seed" in overrides else None
     fragments = Fragments(folder)
     rows: list[dict] = []
     start = time.perf_counter()
     for done, entry in enumerate(entries, start=1):
         try:
-            pair_rows = entry_rows(entry, fragments, methods, config, args.no_viewpoints)
+            pair_rows = entry_rows(entry, fragments, methods, config, args.no_viewpoints, seed)
         except FileNotFoundError as exc:
             parser.error(str(exc))
         rows += pair_rows
@@ -188,7 +192,8 @@ def run_threedmatch(args, argv, methods: list[str], parser) -> int:
     summary = summarise(rows)
     drawn = f"a fixed sample of {len(entries)} pairs" if args.sample else f"{len(entries)} pairs"
     title = (header("regor_ros on the 3DMatch / 3DLoMatch test lists", argv) + f"Data: `{folder}`, {drawn}. "
-             "Indoor preset (with --set overrides), fragments as the benchmark gives them (no added motion), "
+             f"Indoor preset (with --set overrides), registrations seeded with {seed or 0}, fragments as the "
+             "benchmark gives them (no added motion), "
              "FPFH included in the time. Success (RR): RE < 15 deg and TE < 30 cm. Published: the method's own "
              f"gate passed the pose; gross: a published wrong pose > {GROSS_THRESHOLDS['indoor'][0]:g} deg or "
              f"> {GROSS_THRESHOLDS['indoor'][1]:g} m off." + UNSEEN_NOTE * args.no_viewpoints)
