@@ -9,7 +9,9 @@ broken by index; the seeds' local spectral weights and the refinement's moments 
 in another order (the last bits differ). The feature search gives the similarities of a numpy matrix product; FAISS,
 which it replaced, sums in another order (the last bit may differ). Nothing depends on the
 number of threads. FPFH gives Open3D's histograms (the tests hold it to them) but for the order
-of a sum's terms and which of the neighbours tied at the max_nn-th distance are kept.
+of a sum's terms and which of the neighbours tied at the max_nn-th distance are kept; the normals
+are Open3D's to the bit, its arithmetic step for step (features.surface_normals asks Open3D's
+kd-tree for the order of tied neighbours where it matters).
 Compiled code is cached on disk (``cache=True``); ``warm_up`` compiles or loads every kernel, so a
 node pays that when it starts, not on its first relocalization. The threads they run on are
 this module's too: OpenMP first, and numpy's BLAS kept off the cores while a registration runs
@@ -1552,55 +1554,162 @@ def _gather_around(cell_at, keys, table, starts, order, ordered, block, block_in
 
 
 @njit(inline="always")
-def _least_spread(c00, c01, c02, c11, c12, c22, out):
-    """The unit eigenvector of the smallest eigenvalue of the symmetric 3 x 3 matrix with these
-    entries, into ``out``; (0, 0, 1) when the matrix has no preferred direction. The eigenvalue in
-    closed form (the trigonometric solution of the characteristic cubic), the vector as the largest
-    cross product of two rows of the matrix less that eigenvalue (each is perpendicular to it)."""
-    scale = max(abs(c00), abs(c01), abs(c02), abs(c11), abs(c12), abs(c22))
-    out[0], out[1], out[2] = 0.0, 0.0, 1.0
-    if scale == 0.0:
-        return
-    a00, a01, a02, a11, a12, a22 = c00 / scale, c01 / scale, c02 / scale, c11 / scale, c12 / scale, c22 / scale
-    q = (a00 + a11 + a22) / 3.0
-    off = a01 * a01 + a02 * a02 + a12 * a12
-    b00, b11, b22 = a00 - q, a11 - q, a22 - q
-    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
-    if p == 0.0:
-        return
-    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / p ** 3
-    phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
-    least = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    r0x, r0y, r0z = a00 - least, a01, a02
-    r1x, r1y, r1z = a01, a11 - least, a12
-    r2x, r2y, r2z = a02, a12, a22 - least
-    best = 0.0
-    for pair in range(3):
-        if pair == 0:
-            ux, uy, uz, vx, vy, vz = r0x, r0y, r0z, r1x, r1y, r1z
-        elif pair == 1:
-            ux, uy, uz, vx, vy, vz = r0x, r0y, r0z, r2x, r2y, r2z
+def _eigenvector_of(a00, a01, a02, a11, a12, a22, value):
+    """A unit eigenvector of the symmetric matrix for its eigenvalue ``value``, when that one is
+    apart from the other two: the longest cross product of two rows of the matrix less the value
+    (each is perpendicular to it)."""
+    r0x, r0y, r0z = a00 - value, a01, a02
+    r1x, r1y, r1z = a01, a11 - value, a12
+    r2x, r2y, r2z = a02, a12, a22 - value
+    ax, ay, az = r0y * r1z - r0z * r1y, r0z * r1x - r0x * r1z, r0x * r1y - r0y * r1x
+    bx, by, bz = r0y * r2z - r0z * r2y, r0z * r2x - r0x * r2z, r0x * r2y - r0y * r2x
+    cx, cy, cz = r1y * r2z - r1z * r2y, r1z * r2x - r1x * r2z, r1x * r2y - r1y * r2x
+    d0, d1, d2 = ax * ax + ay * ay + az * az, bx * bx + by * by + bz * bz, cx * cx + cy * cy + cz * cz
+    if d1 > d0 and d1 >= d2:
+        length = np.sqrt(d1)
+        return bx / length, by / length, bz / length
+    if d2 > d0 and d2 > d1:
+        length = np.sqrt(d2)
+        return cx / length, cy / length, cz / length
+    length = np.sqrt(d0)
+    return ax / length, ay / length, az / length
+
+
+@njit(inline="always")
+def _second_eigenvector(a00, a01, a02, a11, a12, a22, ex, ey, ez, value):
+    """A unit eigenvector for eigenvalue ``value``, perpendicular to the unit eigenvector (ex, ey,
+    ez) already found: the null direction of the matrix less the value within the plane normal to
+    that vector (robust when the two remaining eigenvalues are close)."""
+    if abs(ex) > abs(ey):
+        inverse = 1 / np.sqrt(ex * ex + ez * ez)
+        ux, uy, uz = -ez * inverse, 0.0, ex * inverse
+    else:
+        inverse = 1 / np.sqrt(ey * ey + ez * ez)
+        ux, uy, uz = 0.0, ez * inverse, -ey * inverse
+    vx, vy, vz = ey * uz - ez * uy, ez * ux - ex * uz, ex * uy - ey * ux
+    aux, auy, auz = a00 * ux + a01 * uy + a02 * uz, a01 * ux + a11 * uy + a12 * uz, a02 * ux + a12 * uy + a22 * uz
+    avx, avy, avz = a00 * vx + a01 * vy + a02 * vz, a01 * vx + a11 * vy + a12 * vz, a02 * vx + a12 * vy + a22 * vz
+    m00 = ux * aux + uy * auy + uz * auz - value
+    m01 = ux * avx + uy * avy + uz * avz
+    m11 = vx * avx + vy * avy + vz * avz - value
+    if abs(m00) >= abs(m11):
+        if max(abs(m00), abs(m01)) == 0:
+            return ux, uy, uz
+        if abs(m00) >= abs(m01):
+            m01 /= m00
+            m00 = 1 / np.sqrt(1 + m01 * m01)
+            m01 *= m00
         else:
-            ux, uy, uz, vx, vy, vz = r1x, r1y, r1z, r2x, r2y, r2z
-        x, y, z = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        length2 = x * x + y * y + z * z
-        if length2 > best:
-            best = length2
-            out[0], out[1], out[2] = x, y, z
-    if best > 0.0:
-        length = np.sqrt(best)
-        out[0], out[1], out[2] = out[0] / length, out[1] / length, out[2] / length
+            m00 /= m01
+            m01 = 1 / np.sqrt(1 + m00 * m00)
+            m00 *= m01
+        return m01 * ux - m00 * vx, m01 * uy - m00 * vy, m01 * uz - m00 * vz
+    if max(abs(m11), abs(m01)) == 0:
+        return ux, uy, uz
+    if abs(m11) >= abs(m01):
+        m01 /= m11
+        m11 = 1 / np.sqrt(1 + m01 * m01)
+        m01 *= m11
+    else:
+        m11 /= m01
+        m01 = 1 / np.sqrt(1 + m11 * m11)
+        m11 *= m01
+    return m11 * ux - m01 * vx, m11 * uy - m01 * vy, m11 * uz - m01 * vz
+
+
+@njit(inline="always")
+def _least_spread(c00, c01, c02, c11, c12, c22):
+    """The unit eigenvector of the smallest eigenvalue of the symmetric 3 x 3 matrix, as Open3D's
+    fast solver gives it, sign included (the eigenvalues in closed form, the trigonometric solution
+    of the characteristic cubic, on the matrix scaled by its largest entry); (0, 0, 0) for the zero
+    matrix."""
+    scale = max(c00, c01, c02, c11, c12, c22)
+    if scale == 0:
+        return 0.0, 0.0, 0.0
+    a00, a01, a02, a11, a12, a22 = c00 / scale, c01 / scale, c02 / scale, c11 / scale, c12 / scale, c22 / scale
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    if not off > 0:   # diagonal: the axis of the least entry (compared scaled back, as Open3D does)
+        d00, d11, d22 = a00 * scale, a11 * scale, a22 * scale
+        if d00 < d11 and d00 < d22:
+            return 1.0, 0.0, 0.0
+        if d11 < d00 and d11 < d22:
+            return 0.0, 1.0, 0.0
+        return 0.0, 0.0, 1.0
+    q = (a00 + a11 + a22) / 3
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + off * 2) / 6)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)) / (p * p * p)
+    half_det = min(max(det * 0.5, -1.0), 1.0)
+    angle = np.arccos(half_det) / 3.0
+    high = np.cos(angle) * 2
+    low = np.cos(angle + 2.09439510239319549) * 2
+    value0, value1, value2 = q + p * low, q + p * -(low + high), q + p * high
+    # the eigenvalue farthest from the other two first, its vector by cross products; the second
+    # perpendicular to it; the third their cross product
+    if half_det >= 0:
+        ex, ey, ez = _eigenvector_of(a00, a01, a02, a11, a12, a22, value2)
+        if value2 < value0 and value2 < value1:
+            return ex, ey, ez
+    else:
+        ex, ey, ez = _eigenvector_of(a00, a01, a02, a11, a12, a22, value0)
+        if value0 < value1 and value0 < value2:
+            return ex, ey, ez
+    fx, fy, fz = _second_eigenvector(a00, a01, a02, a11, a12, a22, ex, ey, ez, value1)
+    if value1 < value0 and value1 < value2:
+        return fx, fy, fz
+    if half_det >= 0:
+        return fy * ez - fz * ey, fz * ex - fx * ez, fx * ey - fy * ex
+    return ey * fz - ez * fy, ez * fx - ex * fz, ex * fy - ey * fx
+
+
+@njit(inline="always")
+def _normal_of(points, neighbourhood, k):
+    """Open3D's normal of the first ``k`` rows of ``neighbourhood``: the least spread of their
+    covariance, its moments summed in that order; (0, 0, 1) for fewer than three points or no
+    spread."""
+    if k < 3:
+        return 0.0, 0.0, 1.0
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    for i in range(k):
+        x, y, z = points[neighbourhood[i], 0], points[neighbourhood[i], 1], points[neighbourhood[i], 2]
+        s0, s1, s2 = s0 + x, s1 + y, s2 + z
+        s3, s4, s5, s6, s7, s8 = s3 + x * x, s4 + x * y, s5 + x * z, s6 + y * y, s7 + y * z, s8 + z * z
+    s0, s1, s2, s3, s4, s5, s6, s7, s8 = s0 / k, s1 / k, s2 / k, s3 / k, s4 / k, s5 / k, s6 / k, s7 / k, s8 / k
+    x, y, z = _least_spread(s3 - s0 * s0, s4 - s0 * s1, s5 - s0 * s2, s6 - s1 * s1, s7 - s1 * s2, s8 - s2 * s2)
+    if x == 0.0 and y == 0.0 and z == 0.0:
+        return 0.0, 0.0, 1.0
+    return x, y, z
+
+
+@njit(inline="always")
+def _turned(x, y, z, toward, p):
+    """(x, y, z), negated where it points away from row ``p`` of ``toward``."""
+    if x * toward[p, 0] + y * toward[p, 1] + z * toward[p, 2] < 0.0:
+        return -x, -y, -z
+    return x, y, z
+
+
+@njit(**JIT)
+def normal_of(points, neighbourhood, toward, p):
+    """Open3D's normal of point ``p`` from its neighbourhood in the order given (the point first),
+    turned as surface_normals turns it."""
+    x, y, z = _normal_of(points, neighbourhood, len(neighbourhood))
+    return np.array(_turned(x, y, z, toward, p))
 
 
 @njit(parallel=True, **JIT)
 def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, ordered):
-    """(N, 3) unit normals as Open3D estimates them (the direction of least spread of each point
-    with its ``max_nn`` - 1 nearest within ``radius``), each turned to face its row of
-    ``toward`` (a direction to its sensor), on neighbour_grid's grid of cells no smaller than the
-    radius. A point with fewer than two neighbours gets (0, 0, 1), turned. Points are
-    independent: the same normals whatever the threads."""
+    """(N, 3) unit normals in Open3D's arithmetic (its hybrid search's neighbourhood: the
+    ``max_nn`` nearest within ``radius``, the point itself counted, in ascending distance; their
+    moments summed in that order; its fast eigen solver), each negated where it points away from
+    its row of ``toward`` (zeros: as the solver gave it), on neighbour_grid's grid of cells no
+    smaller than the radius; and whether two of a point's neighbours tie in distance and their
+    order (Open3D's is its kd-tree's, not known here) or, at the cut-off, which is kept changes
+    the normal (normal_of takes Open3D's order).
+    Points are independent: the same normals whatever the threads."""
     n = len(points)
     normals = np.empty((n, 3))
+    tied = np.zeros(n, np.bool_)
     radius2 = radius * radius
     most_candidates = _most_around(starts)
     for cell_at in prange(len(keys)):
@@ -1608,33 +1717,45 @@ def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, 
         block_index = np.empty(most_candidates, np.int64)
         candidate = np.empty(most_candidates, np.int64)
         candidate_d2 = np.empty(most_candidates)
-        scratch = np.empty(most_candidates)
-        neighbours = np.empty(max(max_nn - 1, 0), np.int64)
-        normal = np.empty(3)
+        nearest = np.empty(max_nn + 1, np.int64)   # one more than kept: a tie at the cut-off shows
+        nearest_d2 = np.empty(max_nn + 1)
         m = _gather_around(cell_at, keys, table, starts, order, ordered, block, block_index)
         for at in range(starts[cell_at], starts[cell_at + 1]):
             p = order[at]
-            count = _nearest_within(p, ordered[at, 0], ordered[at, 1], ordered[at, 2], block, block_index, m,
-                                    radius2, neighbours, candidate, candidate_d2, scratch)
-            mx, my, mz = points[p, 0], points[p, 1], points[p, 2]
-            for i in range(count):
-                mx, my, mz = mx + points[neighbours[i], 0], my + points[neighbours[i], 1], mz + points[neighbours[i], 2]
-            mx, my, mz = mx / (count + 1), my / (count + 1), mz / (count + 1)
-            dx, dy, dz = points[p, 0] - mx, points[p, 1] - my, points[p, 2] - mz
-            c00, c01, c02, c11, c12, c22 = dx * dx, dx * dy, dx * dz, dy * dy, dy * dz, dz * dz
-            for i in range(count):
-                q = neighbours[i]
-                dx, dy, dz = points[q, 0] - mx, points[q, 1] - my, points[q, 2] - mz
-                c00, c01, c02 = c00 + dx * dx, c01 + dx * dy, c02 + dx * dz
-                c11, c12, c22 = c11 + dy * dy, c12 + dy * dz, c22 + dz * dz
-            if count >= 2:
-                _least_spread(c00, c01, c02, c11, c12, c22, normal)
-            else:
-                normal[0], normal[1], normal[2] = 0.0, 0.0, 1.0
-            flip = normal[0] * toward[p, 0] + normal[1] * toward[p, 1] + normal[2] * toward[p, 2] < 0.0
-            for a in range(3):
-                normals[p, a] = -normal[a] if flip else normal[a]
-    return normals
+            x, y, z = ordered[at, 0], ordered[at, 1], ordered[at, 2]
+            for i in range(m):   # one pass the compiler vectorises, then the ones within, without a branch
+                dx, dy, dz = x - block[0, i], y - block[1, i], z - block[2, i]
+                candidate_d2[i] = dx * dx + dy * dy + dz * dz
+            within = 0
+            for i in range(m):
+                d2 = candidate_d2[i]
+                candidate[within], candidate_d2[within] = block_index[i], d2
+                within += d2 < radius2
+            count = 0
+            for i in range(within):   # the nearest by insertion, in ascending distance, ties in the order met
+                d2 = candidate_d2[i]
+                if count == max_nn + 1 and d2 >= nearest_d2[max_nn]:
+                    continue
+                slot = min(count, max_nn)
+                while slot > 0 and nearest_d2[slot - 1] > d2:
+                    nearest[slot], nearest_d2[slot] = nearest[slot - 1], nearest_d2[slot - 1]
+                    slot -= 1
+                nearest[slot], nearest_d2[slot] = candidate[i], d2
+                count = min(count + 1, max_nn + 1)
+            kept = min(count, max_nn)
+            nx, ny, nz = _normal_of(points, nearest, kept)
+            normals[p, 0], normals[p, 1], normals[p, 2] = _turned(nx, ny, nz, toward, p)
+            pairs = 0   # ties: where their order (or, at the cut-off, which is kept) changes the normal
+            for i in range(count - 1):
+                if nearest_d2[i] == nearest_d2[i + 1]:
+                    if i + 1 >= kept or (i > 0 and nearest_d2[i - 1] == nearest_d2[i]):
+                        tied[p] = True
+                    nearest[i], nearest[i + 1] = nearest[i + 1], nearest[i]
+                    pairs += 1
+            if pairs > 0 and not tied[p]:
+                sx, sy, sz = _normal_of(points, nearest, kept)
+                tied[p] = sx != nx or sy != ny or sz != nz
+    return normals, tied
 
 
 @njit(parallel=True, **JIT)
@@ -1737,3 +1858,4 @@ def warm_up() -> None:
                       np.arange(2, dtype=np.int64), points[:2].copy())
         surface_normals(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
                         np.arange(2, dtype=np.int64), points[:2].copy())
+        normal_of(points[:2].copy(), np.arange(2, dtype=np.int64), normals, 0)

@@ -25,8 +25,8 @@ from ..core.feature_index import FeatureIndex
 from ..core.map_view import MapView
 
 # raise when the saved arrays or their meaning change (3: normals face the sensors; 4: a map keeps its
-# ground; 5: the index's cells trained in two levels; 6: a map's normals compiled)
-CACHE_VERSION = 6
+# ground; 5: the index's cells trained in two levels; 6: a map's normals compiled; 7: in Open3D's arithmetic)
+CACHE_VERSION = 7
 
 
 class CacheError(Exception):
