@@ -79,7 +79,7 @@ def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
     np.testing.assert_array_equal(slabs, whole)
 
 
-def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors():
+def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors(monkeypatch):
     """Normals are computed on every core, not by Open3D (one core, holding the interpreter lock),
     but they must be the normals everything was measured with, to the bit: Open3D's, with their
     signs turned toward the nearest sensor. Among the fragments is one where two neighbours tied in
@@ -87,6 +87,7 @@ def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors():
     from above on one side and from below on the other faces both ways."""
     import open3d as o3d
     require_shared_data("the pairs")
+    from regor_ros.core import features
     from regor_ros.core.range_image import nearest_viewpoint
     for pair, preset in (("pairs_scenes/3dmatch_studyroom_27_32", "indoor"),
                          ("pairs_scenes/3dmatch_home_at_2_31", "indoor"),
@@ -104,6 +105,14 @@ def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors():
             np.testing.assert_array_equal(ours, theirs)
             away = ((nearest_viewpoint(sensors, points) - points) * theirs).sum(axis=1) < 0
             np.testing.assert_array_equal(turned, np.where(away[:, None], -theirs, theirs))
+    # a lattice: distances tie everywhere, several pairs in a neighbourhood, some only in the last
+    # bit; Open3D's pass over the whole cloud, or its kd-tree asked point by point, the same normals
+    lattice = np.mgrid[0:30, 0:30, 0:3].reshape(3, -1).T * 0.05 + 0.0123
+    down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(lattice))
+    down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1, max_nn=30))
+    for share in (features.TIED_SHARE_FOR_OPEN3D, 1.0):
+        monkeypatch.setattr(features, "TIED_SHARE_FOR_OPEN3D", share)
+        np.testing.assert_array_equal(surface_normals(lattice, 0.1, 30), np.asarray(down.normals))
     rng = np.random.default_rng(3)
     floor = np.c_[rng.uniform(-5, 5, (2000, 2)), np.zeros(2000)]
     faced = surface_normals(floor, 0.5, 30, np.array([[-3.0, 0.0, 2.0], [3.0, 0.0, -2.0]]))

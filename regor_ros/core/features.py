@@ -93,6 +93,11 @@ def fpfh(points: np.ndarray, normals: np.ndarray, radius: float, max_nn: int,
     return features
 
 
+# beyond this share of a cloud's points asking Open3D's kd-tree one at a time, Open3D's own pass over
+# the whole cloud (the same normals) is the faster way
+TIED_SHARE_FOR_OPEN3D = 0.2
+
+
 def surface_normals(points: np.ndarray, radius: float, max_nn: int, sensors: np.ndarray | None = None) -> np.ndarray:
     """Open3D's normals (``estimate_normals``, hybrid search) to the bit, computed on every core
     (kernels.surface_normals) where Open3D's run on one and hold the interpreter lock; with
@@ -108,9 +113,15 @@ def surface_normals(points: np.ndarray, radius: float, max_nn: int, sensors: np.
     cells = grid.cells(radius)
     normals, tied = kernels.surface_normals(grid.points, toward, float(radius), int(max_nn), cells.keys, cells.table,
                                             cells.starts, cells.order, cells.ordered)
-    if tied.any():
+    asking = np.flatnonzero(tied)
+    if len(asking) > TIED_SHARE_FOR_OPEN3D * len(points):   # a lattice's distances all tie
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(grid.points))
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
+        normals = np.asarray(cloud.normals)
+        return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
+    if len(asking):
         tree = o3d.geometry.KDTreeFlann(np.ascontiguousarray(grid.points.T))
-        for p in np.flatnonzero(tied):
+        for p in asking:
             _, neighbourhood, _ = tree.search_hybrid_vector_3d(grid.points[p], radius, max_nn)
             normals[p] = kernels.normal_of(grid.points, np.asarray(neighbourhood, dtype=np.int64), toward, p)
     return normals

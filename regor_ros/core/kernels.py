@@ -1745,16 +1745,19 @@ def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, 
             kept = min(count, max_nn)
             nx, ny, nz = _normal_of(points, nearest, kept)
             normals[p, 0], normals[p, 1], normals[p, 2] = _turned(nx, ny, nz, toward, p)
-            pairs = 0   # ties: where their order (or, at the cut-off, which is kept) changes the normal
+            # ties: flagged where their order (or, at the cut-off, which is kept) may change the
+            # normal; one tied pair is summed the other way round to see, more are not tried
+            pairs, at_pair = 0, 0
             for i in range(count - 1):
                 if nearest_d2[i] == nearest_d2[i + 1]:
-                    if i + 1 >= kept or (i > 0 and nearest_d2[i - 1] == nearest_d2[i]):
-                        tied[p] = True
-                    nearest[i], nearest[i + 1] = nearest[i + 1], nearest[i]
-                    pairs += 1
-            if pairs > 0 and not tied[p]:
+                    pairs += 1 if i + 1 < kept else 2
+                    at_pair = i
+            if pairs == 1:
+                nearest[at_pair], nearest[at_pair + 1] = nearest[at_pair + 1], nearest[at_pair]
                 sx, sy, sz = _normal_of(points, nearest, kept)
                 tied[p] = sx != nx or sy != ny or sz != nz
+            else:
+                tied[p] = pairs > 1
     return normals, tied
 
 
