@@ -1576,6 +1576,18 @@ def _eigenvector_of(a00, a01, a02, a11, a12, a22, value):
 
 
 @njit(inline="always")
+def _unit_pair(a, b):
+    """(a, b) scaled to unit length up to sign, the larger divided out first (no overflow)."""
+    if abs(a) >= abs(b):
+        b /= a
+        a = 1 / np.sqrt(1 + b * b)
+        return a, b * a
+    a /= b
+    b = 1 / np.sqrt(1 + a * a)
+    return a * b, b
+
+
+@njit(inline="always")
 def _second_eigenvector(a00, a01, a02, a11, a12, a22, ex, ey, ez, value):
     """A unit eigenvector for eigenvalue ``value``, perpendicular to the unit eigenvector (ex, ey,
     ez) already found: the null direction of the matrix less the value within the plane normal to
@@ -1595,26 +1607,12 @@ def _second_eigenvector(a00, a01, a02, a11, a12, a22, ex, ey, ez, value):
     if abs(m00) >= abs(m11):
         if max(abs(m00), abs(m01)) == 0:
             return ux, uy, uz
-        if abs(m00) >= abs(m01):
-            m01 /= m00
-            m00 = 1 / np.sqrt(1 + m01 * m01)
-            m01 *= m00
-        else:
-            m00 /= m01
-            m01 = 1 / np.sqrt(1 + m00 * m00)
-            m00 *= m01
-        return m01 * ux - m00 * vx, m01 * uy - m00 * vy, m01 * uz - m00 * vz
+        a, b = _unit_pair(m00, m01)
+        return b * ux - a * vx, b * uy - a * vy, b * uz - a * vz
     if max(abs(m11), abs(m01)) == 0:
         return ux, uy, uz
-    if abs(m11) >= abs(m01):
-        m01 /= m11
-        m11 = 1 / np.sqrt(1 + m01 * m01)
-        m01 *= m11
-    else:
-        m11 /= m01
-        m01 = 1 / np.sqrt(1 + m11 * m11)
-        m11 *= m01
-    return m11 * ux - m01 * vx, m11 * uy - m01 * vy, m11 * uz - m01 * vz
+    a, b = _unit_pair(m11, m01)
+    return a * ux - b * vx, a * uy - b * vy, a * uz - b * vz
 
 
 @njit(inline="always")
