@@ -79,15 +79,13 @@ def test_fpfh_in_slabs_is_the_fpfh_of_the_whole_cloud():
     np.testing.assert_array_equal(slabs, whole)
 
 
-def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors(monkeypatch):
+def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors():
     """Normals are computed on every core, not by Open3D (one core, holding the interpreter lock),
     but they must be the normals everything was measured with, to the bit: Open3D's, with their
     signs turned toward the nearest sensor. Among the fragments is one where two neighbours tied in
-    distance change a normal (their order is the one only Open3D's kd-tree knows); and a floor seen
-    from above on one side and from below on the other faces both ways."""
+    distance change a normal (their order is the one only Open3D's kd-tree knows)."""
     import open3d as o3d
     require_shared_data("the pairs")
-    from regor_ros.core import features
     from regor_ros.core.range_image import nearest_viewpoint
     for pair, preset in (("pairs_scenes/3dmatch_studyroom_27_32", "indoor"),
                          ("pairs_scenes/3dmatch_home_at_2_31", "indoor"),
@@ -105,8 +103,16 @@ def test_normals_are_open3d_s_to_the_bit_and_face_the_sensors(monkeypatch):
             np.testing.assert_array_equal(ours, theirs)
             away = ((nearest_viewpoint(sensors, points) - points) * theirs).sum(axis=1) < 0
             np.testing.assert_array_equal(turned, np.where(away[:, None], -theirs, theirs))
-    # a lattice: distances tie everywhere, several pairs in a neighbourhood, some only in the last
-    # bit; Open3D's pass over the whole cloud, or its kd-tree asked point by point, the same normals
+
+
+def test_normals_on_a_lattice_are_open3d_s_and_a_floor_faces_both_sensors(monkeypatch):
+    """On a lattice distances tie everywhere, several pairs in a neighbourhood, some only in the
+    last bit: Open3D's pass over the whole cloud, or its kd-tree asked point by point, gives the
+    same normals as Open3D. A floor seen from above on one side and from below on the other faces
+    both ways."""
+    import open3d as o3d
+
+    from regor_ros.core import features
     lattice = np.mgrid[0:30, 0:30, 0:3].reshape(3, -1).T * 0.05 + 0.0123
     down = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(lattice))
     down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1, max_nn=30))
