@@ -108,23 +108,24 @@ def surface_normals(points: np.ndarray, radius: float, max_nn: int, sensors: np.
     (PCL turns normals toward the viewpoint by default). Where two of a point's neighbours tie in
     distance, Open3D sums them in its kd-tree's order, which only the tree knows: those few points
     ask it."""
-    toward = np.zeros_like(points) if sensors is None else nearest_viewpoint(sensors, points) - points
     grid = NeighbourGrid(points)
     cells = grid.cells(radius)
-    normals, tied = kernels.surface_normals(grid.points, toward, float(radius), int(max_nn), cells.keys, cells.table,
+    normals, tied = kernels.surface_normals(grid.points, float(radius), int(max_nn), cells.keys, cells.table,
                                             cells.starts, cells.order, cells.ordered)
     asking = np.flatnonzero(tied)
     if len(asking) > TIED_SHARE_FOR_OPEN3D * len(points):   # a lattice's distances all tie
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(grid.points))
         cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
         normals = np.asarray(cloud.normals)
-        return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
-    if len(asking):
+    elif len(asking):
         tree = o3d.geometry.KDTreeFlann(np.ascontiguousarray(grid.points.T))
         for p in asking:
             _, neighbourhood, _ = tree.search_hybrid_vector_3d(grid.points[p], radius, max_nn)
-            normals[p] = kernels.normal_of(grid.points, np.asarray(neighbourhood, dtype=np.int64), toward, p)
-    return normals
+            normals[p] = kernels.normal_of(grid.points, np.asarray(neighbourhood, dtype=np.int64))
+    if sensors is None:
+        return normals
+    toward = nearest_viewpoint(sensors, points) - points
+    return np.where(((toward * normals).sum(axis=1) < 0)[:, None], -normals, normals)
 
 
 def prepare(cloud: SeenCloud, config: FeatureConfig, name: str = "cloud",

@@ -1679,32 +1679,21 @@ def _normal_of(points, neighbourhood, k):
     return x, y, z
 
 
-@njit(inline="always")
-def _turned(x, y, z, toward, p):
-    """(x, y, z), negated where it points away from row ``p`` of ``toward``."""
-    if x * toward[p, 0] + y * toward[p, 1] + z * toward[p, 2] < 0.0:
-        return -x, -y, -z
-    return x, y, z
-
-
 @njit(**JIT)
-def normal_of(points, neighbourhood, toward, p):
-    """Open3D's normal of point ``p`` from its neighbourhood in the order given (the point first),
-    turned as surface_normals turns it."""
-    x, y, z = _normal_of(points, neighbourhood, len(neighbourhood))
-    return np.array(_turned(x, y, z, toward, p))
+def normal_of(points, neighbourhood):
+    """Open3D's normal from a point's neighbourhood in the order given (the point first)."""
+    return np.array(_normal_of(points, neighbourhood, len(neighbourhood)))
 
 
 @njit(parallel=True, **JIT)
-def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, ordered):
+def surface_normals(points, radius, max_nn, keys, table, starts, order, ordered):
     """(N, 3) unit normals in Open3D's arithmetic (its hybrid search's neighbourhood: the
     ``max_nn`` nearest within ``radius``, the point itself counted, in ascending distance; their
-    moments summed in that order; its fast eigen solver), each negated where it points away from
-    its row of ``toward`` (zeros: as the solver gave it), on neighbour_grid's grid of cells no
-    smaller than the radius; and whether two of a point's neighbours tie in distance and their
-    order (Open3D's is its kd-tree's, not known here) or, at the cut-off, which is kept changes
-    the normal (normal_of takes Open3D's order).
-    Points are independent: the same normals whatever the threads."""
+    moments summed in that order; its fast eigen solver), signed as the solver gives them, on
+    neighbour_grid's grid of cells no smaller than the radius; and whether two of a point's
+    neighbours tie in distance and their order (Open3D's is its kd-tree's, not known here) or, at
+    the cut-off, which is kept changes the normal (normal_of takes Open3D's order). Points are
+    independent: the same normals whatever the threads."""
     n = len(points)
     normals = np.empty((n, 3))
     tied = np.zeros(n, np.bool_)
@@ -1742,7 +1731,7 @@ def surface_normals(points, toward, radius, max_nn, keys, table, starts, order, 
                 count = min(count + 1, max_nn + 1)
             kept = min(count, max_nn)
             nx, ny, nz = _normal_of(points, nearest, kept)
-            normals[p, 0], normals[p, 1], normals[p, 2] = _turned(nx, ny, nz, toward, p)
+            normals[p, 0], normals[p, 1], normals[p, 2] = nx, ny, nz
             # ties: flagged where their order (or, at the cut-off, which is kept) may change the
             # normal; one tied pair is summed the other way round to see, more are not tried
             pairs, at_pair = 0, 0
@@ -1857,6 +1846,6 @@ def warm_up() -> None:
         normals = np.tile([0.0, 0.0, 1.0], (2, 1))
         fpfh_features(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
                       np.arange(2, dtype=np.int64), points[:2].copy())
-        surface_normals(points[:2].copy(), normals, 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
+        surface_normals(points[:2].copy(), 0.1, 3, keys, grid_table(keys), np.array([0, 2], np.int64),
                         np.arange(2, dtype=np.int64), points[:2].copy())
-        normal_of(points[:2].copy(), np.arange(2, dtype=np.int64), normals, 0)
+        normal_of(points[:2].copy(), np.arange(2, dtype=np.int64))
