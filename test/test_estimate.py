@@ -158,7 +158,7 @@ def test_plane_refinement_fixes_what_the_surfaces_fix_and_leaves_the_rest():
     """A floor fixes height, roll and pitch, never a slide along it: the slide the point level
     left stays (damping), the height is corrected."""
     points, normals, start = _floor([0.3, -0.2, 0.05])
-    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2])
+    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2], 0.1)
     np.testing.assert_allclose(T[:3, 3], [0.3, -0.2, 0.0], atol=1e-3)
     np.testing.assert_allclose(T[:3, :3], np.eye(3), atol=1e-6)
 
@@ -167,10 +167,45 @@ def test_plane_refinement_keeps_its_rotation_inside_the_clamp():
     points, normals, start = _floor([0.0, 0.0, 0.05])
     start[:3, :3] = Rotation.from_euler("x", 3.0, degrees=True).as_matrix()
     kept = start[:3, :3].copy()
-    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2],
+    T = plane_refine(start, points, NeighbourGrid(points), normals, [0.4, 0.2], 0.1,
                      clamp=lambda R: np.broadcast_to(kept, R.shape))
     np.testing.assert_allclose(T[:3, :3], kept, atol=1e-12)
     assert abs(transform_points(T, points)[:, 2].mean()) < 0.01  # the height still fitted under it
+
+
+class _CountedGrid(NeighbourGrid):
+    """A NeighbourGrid that counts the searches a refinement asks of it (one per step)."""
+
+    searches = 0
+
+    def nearest_within(self, queries, threshold):
+        self.searches += 1
+        return super().nearest_within(queries, threshold)
+
+
+def test_plane_refinement_stops_once_its_steps_are_below_the_resolution(kitchen_pair):
+    """On a real pair a few millimetres off: at the indoor voxel the steps soon move the keypoints
+    by less than a tenth of its sigma and a threshold ends there, in fewer steps than where the
+    grid is a thousand times finer; the poses the two reach lie well within the coarser voxel's
+    sigma of each other, and both on the truth."""
+    from regor_ros.core import RegorConfig, prepare_cloud
+    src, tgt, T_gt, _ = kitchen_pair
+    voxel = RegorConfig().features.voxel_size
+    s = prepare_cloud(src, RegorConfig())
+    t = prepare_cloud(tgt, RegorConfig())
+    turn = Rotation.from_euler("z", 0.5, degrees=True).as_matrix()
+    start = to_matrix(turn, np.array([0.01, -0.01, 0.005])) @ T_gt
+    coarse, fine = _CountedGrid(t.points), _CountedGrid(t.points)
+    thresholds = plane_thresholds(0.1, voxel)
+    at_voxel = plane_refine(start, s.points, coarse, t.normals, thresholds, voxel)
+    finer = plane_refine(start, s.points, fine, t.normals, thresholds, voxel / 1000)
+    assert coarse.searches < fine.searches
+    sigma = voxel / np.sqrt(12.0)
+    lever = np.sqrt(np.mean(np.sum((s.points - s.points.mean(axis=0)) ** 2, axis=1)))
+    assert translation_error(at_voxel, finer) < sigma
+    assert np.radians(rotation_error_deg(at_voxel, finer)) * lever < sigma
+    for T in (at_voxel, finer):
+        assert translation_error(T, T_gt) < 2 * voxel and rotation_error_deg(T, T_gt) < 1.0
 
 
 AXES = np.array([1.0, 2.0, 3.0])

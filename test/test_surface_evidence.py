@@ -20,7 +20,7 @@ def evidence_at(T, source, target):
     est, voxel = OUTDOOR.estimation, OUTDOOR.features.voxel_size
     T = point_refine(T, source.points, target.neighbours, est.inlier_threshold, est.max_iterations).transform
     T = plane_refine(T, source.points, target.neighbours, target.normals,
-                     plane_thresholds(est.inlier_threshold, voxel))
+                     plane_thresholds(est.inlier_threshold, voxel), voxel)
     return surface_evidence(T, source, target, OUTDOOR, HYPOTHESES, chance_explains=lambda _: False)
 
 

@@ -142,7 +142,10 @@ def _reweighted(starts: np.ndarray, moments_of: Callable[[np.ndarray], list], it
 # this fraction of the best-fixed direction's curvature keeps free directions (a corridor's axis)
 # where the point-level refinement left them
 PLANE_DAMPING = 1e-3
-PLANE_STEP_SETTLED = 1e-4  # a step this small (rad, m) ends a threshold's iterations
+# a step that moves the keypoints by less than this fraction of a voxel's sigma ends a threshold's
+# iterations: the steps shrink geometrically, so what the rest would add stays well inside the
+# resolution a right pose is known at (resolution_uncertainty)
+PLANE_STEP_SETTLED = 0.1
 PLANE_ITERATIONS = 5  # per threshold: Gauss-Newton on planes settles in a few steps (3 sufficed on a MulRan scan)
 
 
@@ -165,13 +168,18 @@ def _rotation(w: np.ndarray) -> np.ndarray:
 
 
 def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, target_normals: np.ndarray,
-                 thresholds, clamp: Clamp = None) -> np.ndarray:
+                 thresholds, voxel_size: float, clamp: Clamp = None) -> np.ndarray:
     """Point-to-plane refinement of a pose the point-level refinement found: Cauchy-weighted
     Gauss-Newton on each keypoint's distance to its nearest target keypoint's plane, the
     threshold annealed (``plane_thresholds``). The point-level refinement pairs keypoints up to
     tau_e apart (1.2 m outdoors), so a sparse scan's pose stays about half a voxel off; planes
-    slide into place where points would have to coincide."""
+    slide into place where points would have to coincide. A threshold's iterations end when a
+    step moves the keypoints (its turn times their radius of gyration, plus its shift) by less
+    than PLANE_STEP_SETTLED of a voxel's sigma: steps below the resolution only move the pose
+    within what the voxel grid can tell apart."""
     normals = np.ascontiguousarray(target_normals, dtype=np.float64)
+    lever = _gyration(source - source.mean(axis=0), voxel_size)
+    settled = PLANE_STEP_SETTLED * voxel_size / np.sqrt(12.0)
     for threshold in thresholds:
         for _ in range(PLANE_ITERATIONS):
             moved = transform_points(T, source)
@@ -187,7 +195,7 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, targe
             if clamp is not None:
                 rotation = clamp(rotation @ T[:3, :3]) @ T[:3, :3].T
             T = to_matrix(rotation, centre + step[3:] - rotation @ centre) @ T
-            if np.abs(step).max() < PLANE_STEP_SETTLED:
+            if np.linalg.norm(step[:3]) * lever + np.linalg.norm(step[3:]) < settled:
                 break
     return T
 
@@ -200,7 +208,7 @@ def plane_refined(refined: PointRefinement, source: np.ndarray, target: Neighbou
     few degrees off is brought in, and a slide along a corridor or onto a repeated facade that fits
     worse is not taken."""
     fine = plane_refine(refined.transform, source, target, target_normals,
-                        plane_thresholds(inlier_threshold, voxel_size), clamp)
+                        plane_thresholds(inlier_threshold, voxel_size), voxel_size, clamp)
     candidate = inliers_at(fine, source, target, inlier_threshold)
     # keypoints within a voxel of the target, from the residuals found within tau_e
     return candidate if (candidate.distances < voxel_size).sum() >= (refined.distances < voxel_size).sum() else refined

@@ -113,7 +113,8 @@ def decoys(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, config: 
         decoy = point_refine(start, sample, target.neighbours, tolerance, est.max_iterations, clamp).transform
         if est.plane_refinement:
             decoy = plane_refine(decoy, sample, target.neighbours, target.normals,
-                                 plane_thresholds(tolerance, config.features.voxel_size), clamp)
+                                 plane_thresholds(tolerance, config.features.voxel_size),
+                                 config.features.voxel_size, clamp)
         came_back = (rotation_error_deg(decoy, T) <= DECOY_TURN_DEG[0]
                      and translation_error(decoy, T) <= DECOY_SHIFT_TAU[0] * tolerance)
         if not came_back:
