@@ -146,7 +146,7 @@ PLANE_DAMPING = 1e-3
 # iterations: the steps shrink geometrically, so what the rest would add stays well inside the
 # resolution a right pose is known at (resolution_uncertainty)
 PLANE_STEP_SETTLED = 0.1
-PLANE_ITERATIONS = 5  # per threshold: Gauss-Newton on planes settles in a few steps (3 sufficed on a MulRan scan)
+PLANE_ITERATIONS = 5  # per threshold, at most: Gauss-Newton on planes settles in a few steps
 
 
 def plane_thresholds(inlier_threshold: float, voxel_size: float) -> list:
