@@ -179,7 +179,7 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, targe
     within what the voxel grid can tell apart."""
     normals = np.ascontiguousarray(target_normals, dtype=np.float64)
     lever = _gyration(source - source.mean(axis=0), voxel_size)
-    settled = PLANE_STEP_SETTLED * voxel_size / np.sqrt(12.0)
+    settled_move = PLANE_STEP_SETTLED * _voxel_sigma(voxel_size)
     for threshold in thresholds:
         for _ in range(PLANE_ITERATIONS):
             moved = transform_points(T, source)
@@ -195,7 +195,7 @@ def plane_refine(T: np.ndarray, source: np.ndarray, target: NeighbourGrid, targe
             if clamp is not None:
                 rotation = clamp(rotation @ T[:3, :3]) @ T[:3, :3].T
             T = to_matrix(rotation, centre + step[3:] - rotation @ centre) @ T
-            if np.linalg.norm(step[:3]) * lever + np.linalg.norm(step[3:]) < settled:
+            if np.linalg.norm(step[:3]) * lever + np.linalg.norm(step[3:]) < settled_move:
                 break
     return T
 
@@ -278,6 +278,11 @@ def pose_covariance(T: np.ndarray, source: np.ndarray, target: np.ndarray,
     return covariance + resolution_covariance(JtJ, _gyration(arm, voxel_size), voxel_size)
 
 
+def _voxel_sigma(voxel_size: float) -> float:
+    """The standard deviation of a position known only to within a voxel (uniform across it)."""
+    return voxel_size / np.sqrt(12.0)
+
+
 def _gyration(arm: np.ndarray, voxel_size: float) -> float:
     """Radius of gyration of points about the pose's position (``arm``: their offsets), never under a voxel."""
     return max(float(np.sqrt(np.mean(np.sum(arm ** 2, axis=1)))), voxel_size)
@@ -289,7 +294,7 @@ def resolution_uncertainty(T: np.ndarray, source: np.ndarray, voxel_size: float)
     their radius of gyration by as much. The free-space check allows for this much; not for the
     residual term (a wrong pose's large residuals would buy it a wider margin) nor for weakly
     constrained directions (free space is what can catch an error along them)."""
-    sigma = voxel_size / np.sqrt(12.0)
+    sigma = _voxel_sigma(voxel_size)
     if len(source) == 0:
         return sigma, 0.0
     return sigma, sigma / _gyration(transform_points(T, source) - T[:3, 3], voxel_size)
