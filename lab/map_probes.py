@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from regor_ros.core import RegorConfig, is_success, prepare_cloud, register, warm_up
+from regor_ros.core import RegorConfig, is_success, prepare_cloud, register, transform_points, warm_up
 from regor_ros.tools.map_benchmark import load_sequence, tiled
 
 RECALL_KEYPOINTS = 2000   # a query's first keypoints whose nearest neighbour is checked exactly
@@ -39,13 +39,14 @@ for probes, nearest in settings:
     prepared = prepare_cloud(big, config, "map", trajectory=map_trajectory)
     register(scans[0].scan, prepared, config)
     seconds, matching, correct, published, right = [], [], 0, 0, 0
-    for query in scans:
+    for i, query in enumerate(scans):
         source = prepare_cloud(query.scan, config, "source")
+        if i == len(scans) // 2:   # the query whose first keypoints the exact pass checks (below)
+            recall_features = source.features[:RECALL_KEYPOINTS]
         matched = prepared.points[np.maximum(prepared.index.search(source.features, 1)[0][:, 0], 0)]
         near = np.zeros(len(matched), dtype=bool)
         for P in poses:
-            truth = P @ query.truth
-            near |= np.linalg.norm(source.points @ truth[:3, :3].T + truth[:3, 3] - matched, axis=1) \
+            near |= np.linalg.norm(transform_points(P @ query.truth, source.points) - matched, axis=1) \
                 < config.initial.inlier_threshold
         right += int(near.sum())
         result = register(query.scan, prepared, config)
@@ -54,10 +55,9 @@ for probes, nearest in settings:
         success = any(is_success(result.transform, P @ query.truth, "outdoor") for P in poses)
         correct += success
         published += success and result.accepted
-    features = prepare_cloud(scans[len(scans) // 2].scan, config, "source").features[:RECALL_KEYPOINTS]
-    found = prepared.index.search(features, 1)[0][:, 0]
-    exact = np.concatenate([np.argmax(features[i:i + EXACT_BLOCK] @ prepared.features.T, axis=1)
-                            for i in range(0, len(features), EXACT_BLOCK)])
+    found = prepared.index.search(recall_features, 1)[0][:, 0]
+    exact = np.concatenate([np.argmax(recall_features[i:i + EXACT_BLOCK] @ prepared.features.T, axis=1)
+                            for i in range(0, len(recall_features), EXACT_BLOCK)])
     rows.append({"probes": probes, "nearest_probes": nearest, "median_seconds": float(np.median(seconds)),
                  "median_matching_seconds": float(np.median(matching)), "queries": len(scans), "correct": correct,
                  "published_correct": published, "right_matches": right,
