@@ -72,7 +72,7 @@ def map_files(tmp_path_factory):
 
 
 @pytest.mark.parametrize("bad, says", [("missing", "no such file"), ("trajectory", "TUM trajectory"),
-                                       ("random", "not a map")])
+                                       ("random", "not a point cloud")])
 def test_a_map_that_is_not_one_fails_configure_with_the_reason(install, ros, map_files, bad, says):
     """Driven by a lifecycle manager: configure fails and the node stays unconfigured. Started
     alone (autostart): it exits non-zero and says why."""

@@ -28,7 +28,7 @@ _HOMES = {
                 "is_gross", "is_success", "random_rigid_motion", "rotation_error_deg", "translation_error"),
     "pipeline": ("Candidate", "Correspondences", "RegistrationResult", "for_clouds_seen_from", "prepare_cloud",
                  "register"),
-    "scan_history": ("AccumulationLimits", "ScanHistory"),
+    "scan_history": ("ALONE_REASONS", "AccumulationLimits", "ScanHistory"),
     "search_region": ("SearchRegion",),
     "sequence": ("ScanSequence",),
     "verification": ("Verification", "verify"),

@@ -5,7 +5,13 @@ Odometry is accurate over a short stretch, so only the latest scans are fused: a
 ``max_distance`` (by odometry) from the newest one's. A scan is placed by the odometry at its
 stamp, interpolated between the two messages around it, or the nearest message within
 ``tolerance``; a scan with no odometry near its stamp is not fused (it is counted, so a user
-sees why fewer scans were fused).
+sees why fewer scans were fused). Stamps decide, not arrival order: a lidar-inertial odometry
+publishes a scan's pose after it has processed the scan, so the caller waits for odometry that
+``covers`` the newest scan's stamp before asking for the sequence (the node for a bounded time,
+a replay by reading ahead in the recording).
+
+When the newest scan is registered alone, ``info["alone"]`` says why, as one of ALONE_REASONS
+(counted by kind, so a user sees which to fix), and ``info["reason"]`` with the figures.
 """
 from __future__ import annotations
 
@@ -20,6 +26,15 @@ from .sequence import ScanSequence
 from .viewpoint import ORIGIN
 
 ODOMETRY_SECONDS = 60.0  # odometry kept: more than any accumulation window
+
+# why the newest scan was registered alone, by kind
+NO_ODOMETRY = "no odometry received"
+ODOMETRY_BEHIND = "no odometry at or after the scan's stamp"     # late past the wait, or stopped
+ODOMETRY_AHEAD = "the scan is older than the odometry kept"
+ODOMETRY_GAP = "a gap in the odometry at the scan's stamp"
+NOTHING_TO_FUSE = "no earlier scan to fuse"                        # the first, or all too old
+MOVED_TOO_FAR = "the scan before it is beyond accumulate_max_distance"
+ALONE_REASONS = (NO_ODOMETRY, ODOMETRY_BEHIND, ODOMETRY_AHEAD, ODOMETRY_GAP, NOTHING_TO_FUSE, MOVED_TOO_FAR)
 
 
 @dataclass
@@ -54,6 +69,30 @@ class ScanHistory:
         drop = bisect.bisect_left(self._odometry_stamps, self._odometry_stamps[-1] - ODOMETRY_SECONDS)
         del self._odometry_stamps[:drop], self._odometry[:drop]
 
+    def covers(self, stamp: float) -> bool:
+        """Odometry has arrived for ``stamp`` or later: what can place a scan stamped then has been
+        received (odometry comes in stamp order from one source)."""
+        return bool(self._odometry_stamps) and self._odometry_stamps[-1] >= stamp
+
+    @property
+    def has_odometry(self) -> bool:
+        """Any odometry received: only then is a scan worth waiting for."""
+        return bool(self._odometry_stamps)
+
+    def _why_unplaced(self, stamp: float, tolerance: float) -> tuple[str, str]:
+        """(kind, the reason with its figures) for a scan that pose_at cannot place."""
+        stamps = self._odometry_stamps
+        if not stamps:
+            return NO_ODOMETRY, f"{NO_ODOMETRY}: registered alone"
+        if stamps[-1] < stamp:
+            return ODOMETRY_BEHIND, (f"{ODOMETRY_BEHIND} (the newest is {stamp - stamps[-1]:.3f} s before it): "
+                                     "registered alone")
+        if stamps[0] > stamp:
+            return ODOMETRY_AHEAD, f"{ODOMETRY_AHEAD} (it starts {stamps[0] - stamp:.3f} s later): registered alone"
+        i = bisect.bisect_left(stamps, stamp)
+        return ODOMETRY_GAP, (f"{ODOMETRY_GAP} ({stamps[i] - stamps[i - 1]:.3f} s between the messages around it, "
+                              f"more than 2 x odometry_tolerance={tolerance:g} s): registered alone")
+
     def pose_at(self, stamp: float, tolerance: float) -> np.ndarray | None:
         """T_odom_scan at ``stamp``: interpolated between the messages around it when they are at
         most 2 x tolerance apart, else the nearest within tolerance; None when there is none."""
@@ -76,17 +115,19 @@ class ScanHistory:
         """The scans to fuse, ending with the one stamped ``newest``, and what was decided (for
         status: ``more_to_fuse`` says how many more scans the next registrations fuse as they
         arrive with odometry, up to ``limits.scans``). None when fewer than two scans can be
-        fused: register the newest alone. ``viewpoint``: the sensor in each scan's frame."""
+        fused: register the newest alone (``info["alone"]`` says why). ``viewpoint``: the sensor
+        in each scan's frame."""
         candidates = [(s, p) for s, p in self.scans if newest - limits.max_age <= s <= newest]
         if not candidates or candidates[-1][0] != newest:
-            return None, {"scans_fused": 1, "without_odometry": 0, "more_to_fuse": 0,
+            return None, {"scans_fused": 1, "without_odometry": 0, "more_to_fuse": 0, "alone": NOTHING_TO_FUSE,
                           "reason": "the scan is not in the history"}
         newest_pose = self.pose_at(newest, limits.tolerance)
         if newest_pose is None:
-            return None, {"scans_fused": 1, "without_odometry": 1, "more_to_fuse": 0,
-                          "reason": "no odometry near the newest scan's stamp: registered alone"}
+            kind, reason = self._why_unplaced(newest, limits.tolerance)
+            return None, {"scans_fused": 1, "without_odometry": 1, "more_to_fuse": 0, "alone": kind,
+                          "reason": reason}
         scans: list[np.ndarray] = []
-        poses, without, span = [], 0, 0.0
+        poses, without, span, too_far = [], 0, 0.0, False
         for stamp, points in reversed(candidates):
             if len(scans) == limits.scans:
                 break
@@ -96,12 +137,15 @@ class ScanHistory:
                 continue
             distance = float(np.linalg.norm(pose[:3, 3] - newest_pose[:3, 3]))
             if distance > limits.max_distance:
+                too_far = True
                 break
             scans.append(points)
             poses.append(pose)
             span = max(span, distance)
-        info = {"scans_fused": len(scans), "without_odometry": without, "span_m": round(span, 3),
-                "more_to_fuse": limits.scans - len(scans)}
+        info: dict = {"scans_fused": len(scans), "without_odometry": without, "span_m": round(span, 3),
+                      "more_to_fuse": limits.scans - len(scans)}
         if len(scans) < 2:
+            alone = MOVED_TOO_FAR if too_far else NOTHING_TO_FUSE
+            info.update(alone=alone, reason=f"{alone}: registered alone")
             return None, info
         return ScanSequence(scans[::-1], poses[::-1], viewpoint), info

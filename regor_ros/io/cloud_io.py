@@ -5,9 +5,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import RegistrationError
+from ..core import MAX_ABS_COORDINATE, RegistrationError
 
 FORMATS = (".ply", ".pcd", ".xyz", ".txt", ".npy", ".bin")
+MIN_SANE_SHARE = 0.5   # a cloud file is mostly finite points within MAX_ABS_COORDINATE (organised ones have NaN holes)
 
 
 class CloudFileError(RegistrationError):
@@ -49,7 +50,12 @@ def _npy(path: Path) -> np.ndarray:
         raise CloudFileError(f"{path}: not a numpy .npy array file ({why})") from None
     if data.ndim != 2 or data.shape[1] < 3:
         raise CloudFileError(f"{path}: array of shape {data.shape}, need (N, 3) or more columns")
-    return np.asarray(data[:, :3], dtype=np.float64)
+    if len(data) == 0:
+        raise CloudFileError(f"{path}: no points (an empty array)")
+    try:
+        return np.asarray(data[:, :3], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CloudFileError(f"{path}: an array of {data.dtype}, not numbers") from None
 
 
 def _kitti_bin(path: Path) -> np.ndarray:
@@ -74,4 +80,10 @@ def read_cloud(path) -> np.ndarray:
                              f"use one of {', '.join(FORMATS)}")
     if not path.is_file():
         raise CloudFileError(f"{path}: no such file")
-    return reader(path)
+    points = reader(path)
+    with np.errstate(invalid="ignore"):
+        sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
+    if sane.mean() < MIN_SANE_SHARE:
+        raise CloudFileError(f"{path}: {int((~sane).sum())} of {len(points)} points read are NaN, infinite or "
+                             f"beyond {MAX_ABS_COORDINATE:g} m: not a point cloud (random bytes, another format?)")
+    return points

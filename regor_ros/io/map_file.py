@@ -21,7 +21,6 @@ from .cloud_io import CloudFileError, read_cloud
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
 CACHE_SUFFIX = ".regor-cache.npz"
-MIN_SANE_SHARE = 0.5    # a map file is mostly finite points within MAX_ABS_COORDINATE (organised clouds have NaN holes)
 SURFACE_SAMPLE = 3000   # keypoints whose neighbourhoods decide whether the map is made of surfaces
 
 
@@ -71,11 +70,8 @@ def read_map(map_file: Path) -> np.ndarray:
     """The points of a map file, or a CloudFileError saying why they are not plausibly a map:
     mostly garbage (random bytes, a wrong format) or a trajectory (TUM rows). Whether they form
     surfaces is asked of the prepared map (check_surfaces)."""
-    points = read_cloud(map_file)
+    points = read_cloud(map_file)   # refuses a file of mostly NaN, infinite or far points
     sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
-    if sane.mean() < MIN_SANE_SHARE:
-        raise CloudFileError(f"{map_file}: {int((~sane).sum())} of {len(points)} points read are NaN, infinite or "
-                             f"beyond {MAX_ABS_COORDINATE:g} m: not a map (random bytes, another format?)")
     if map_file.suffix.lower() in (".txt", ".xyz") and _is_trajectory(map_file):
         raise CloudFileError(f"{map_file}: rows of t x y z qx qy qz qw: a TUM trajectory, not a map "
                              "(give it as map_trajectory_file)")

@@ -33,6 +33,7 @@ class Health:
     last_bad_input: str = ""               # the last malformed cloud since the last registration
     last_summary: dict | None = None    # RegistrationResult.summary() of the last registration
     counters: dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
+    alone_because: dict[str, int] = field(default_factory=dict)  # scans to fuse registered alone, by why
     map_info: dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
     inputs: dict[str, str] = field(default_factory=dict)  # each input's QoS, as subscribed
     lifecycle: str = "unconfigured"        # the node's lifecycle state, or why configure failed
@@ -84,7 +85,9 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
     elif not summary["accepted"]:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
-    values = {"lifecycle": health.lifecycle, **health.counters, **health.inputs, **health.map_info}
+    values = {"lifecycle": health.lifecycle, **health.counters,
+              **{f"registered alone: {why}": n for why, n in health.alone_because.items()},
+              **health.inputs, **health.map_info}
     if health.ready_after_s is not None:
         values["ready after seconds"] = health.ready_after_s
     if summary is not None:

@@ -59,6 +59,7 @@ class Localizer:
             self._check_due = False                        # verify_rate's timer asked for a check
             self._checked = 0                              # the serial of the last source checked: each once
             self._relocalizing = False                     # the watchdog asked for the next registration
+            self._waiting_since: float | None = None      # the worker has waited for odometry since (monotonic)
             self.report.health.watchdog = None
             self.report.health.map_info = {}
 
@@ -190,18 +191,38 @@ class Localizer:
         source = self._inputs.source
         if (self._check_due and maps.prepared is not None and source is not None and source.serial > self._checked
                 and not isinstance(job, PrepareMap)):
-            return CheckPose(source)
+            job = CheckPose(source)
+        if isinstance(job, (Register, CheckPose)) and self._awaits_odometry(job.source) > 0:
+            return None
         return job
+
+    def _awaits_odometry(self, source: Cloud) -> float:
+        """Seconds the worker still waits before taking ``source``: it is to be fused, odometry has
+        been received, but none at or after its stamp yet (a lidar-inertial odometry publishes a
+        scan's pose after the scan). The clock starts when the worker could first have taken a
+        source and runs on when a newer scan replaces the waiting one, so the worker never idles
+        longer than odometry_wait (odometry that stopped costs that, once a registration)."""
+        settings, history = self.shared.settings, self.context.history
+        if settings.accumulation().scans < 2 or not history.has_odometry or history.covers(source.stamp):
+            return 0.0
+        now = time.monotonic()
+        if self._waiting_since is None:
+            self._waiting_since = now
+        return max(0.0, settings.odometry_wait - (now - self._waiting_since))
 
     def _work(self) -> None:
         while True:
             with self.lock:
                 job = self._next_job()
                 while job is None and not self.shared.stopping:
-                    self.lock.wait(0.5)
+                    source = self._inputs.source
+                    waiting = 0.0 if source is None or self._waiting_since is None else self._awaits_odometry(source)
+                    self.lock.wait(waiting or 0.5)   # odometry's arrival wakes it (SourceContext.add_odometry)
                     job = self._next_job()
                 if self.shared.stopping:
                     return
+                waited = 0.0 if self._waiting_since is None else time.monotonic() - self._waiting_since
+                self._waiting_since = None
                 config, settings, hint = self.shared.config, self.shared.settings, self.context.hint
                 if isinstance(job, Register):
                     self._inputs.taken(job)
@@ -212,7 +233,7 @@ class Localizer:
             elif isinstance(job, CheckPose):
                 self._check(job.source, config, settings)
             else:
-                answer = self._register(job, config, settings, hint)
+                answer = self._register(job, config, settings, hint, waited)
                 with self.lock:
                     self._answer = answer
                     if self._relocalizing:  # the watchdog's relocalization: the robot found, or not yet
@@ -249,9 +270,9 @@ class Localizer:
         elif result is not None and not result.accepted:
             self.report.logger.warning(f"tracked pose suspect: {check.reason}")
 
-    def _register(self, job: Register, config, settings, hint: Hint | None) -> Answer:
+    def _register(self, job: Register, config, settings, hint: Hint | None, waited: float = 0.0) -> Answer:
         """Register the source against the pair's target or (map mode) the prepared map, and
-        report it."""
+        report it; ``waited``: seconds the worker waited for the source's odometry."""
         src = job.source
         if settings.mode == "map":
             with self.lock:
@@ -262,13 +283,15 @@ class Localizer:
             config, source_up = self.context.gravity(config, settings, src)
             region = self.context.region(hint, target_frame)
             source, viewpoints, accumulation = self.context.source_input(src, settings)
+            if accumulation is not None:
+                accumulation["waited_for_odometry_s"] = round(waited, 3)
             result = register(source, target, config, search_region=region, **viewpoints)
         except Exception as exc:  # keep the node alive whatever the input did
             return Answer(src.serial, False, self.report.not_registered(exc))
         with self.lock:
             if self.shared.stopping:  # the node's publishers are going away
                 return Answer(src.serial, False, "node stopping")
-            self.report.registered(result)
+            self.report.registered(result, accumulation)
             if result.accepted and region is not None and self.context.hint is hint:
                 self.context.hint = None  # the robot is found: the hint has done its job
             status = self.report.status(src, job.target, target_frame, settings, config,

@@ -101,6 +101,11 @@ class NodeSettings:
     accumulate_max_age: float = param(10.0, "fuse only scans at most this much older than the newest [s]", 0.0, 1e4)
     odometry_tolerance: float = param(0.05, "a scan is placed by the odometry interpolated around its stamp, or "
                                        "the nearest message within this; a scan with none is not fused [s]", 0.0, 10.0)
+    odometry_wait: float = param(0.3, "a scan to be fused waits at most this for odometry at or after its stamp "
+                                  "before it is registered with what has arrived (a lidar-inertial odometry "
+                                  "publishes a scan's pose after it has processed the scan); the worker never "
+                                  "idles longer, however many scans replace the waiting one [s]; 0 = no wait",
+                                  0.0, 10.0)
     odometry_to_scan: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the scan's frame in the odometry's "
                                    "child frame: 'x, y, z, roll, pitch, yaw' [m, rad] (identity when the "
                                    "odometry is the sensor's own)")

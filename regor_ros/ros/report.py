@@ -49,8 +49,11 @@ class Report:
     def __init__(self, lock: threading.Condition, logger, map_from_file: bool):
         self.lock, self.logger = lock, logger
         self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
-                      "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0}
-        self.health = Health(counters=self.stats, map_from_file=map_from_file)
+                      "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0,
+                      "registrations_fused": 0, "registrations_alone": 0}
+        # why scans meant to be fused were registered alone: kind (core ALONE_REASONS) -> count
+        self.alone_because: dict[str, int] = {}
+        self.health = Health(counters=self.stats, alone_because=self.alone_because, map_from_file=map_from_file)
         self._warned: dict[str, float] = {}   # kind of bad input -> when it was last logged
 
     def bad_input(self, text: str) -> None:
@@ -77,9 +80,15 @@ class Report:
         self.logger.error(f"registration failed: {type(exc).__name__}: {exc}")
         return f"registration failed: {type(exc).__name__}: {exc}"
 
-    def registered(self, result: RegistrationResult) -> None:
-        """Count a registration and keep its summary (the caller holds the lock)."""
+    def registered(self, result: RegistrationResult, accumulation: dict | None) -> None:
+        """Count a registration, fused or alone (and why) when scans are to be fused, and keep its
+        summary (the caller holds the lock)."""
         self.stats["registrations"] += 1
+        if accumulation is not None:
+            alone = accumulation.get("alone")
+            self.stats["registrations_alone" if alone else "registrations_fused"] += 1
+            if alone:
+                self.alone_because[alone] = self.alone_because.get(alone, 0) + 1
         self.stats["accepted_poses"] += int(result.accepted)
         self.health.last_error = self.health.last_bad_input = ""
         self.health.last_summary = result.summary()
@@ -90,7 +99,8 @@ class Report:
         return {"source_stamp": src.stamp, "source_frame": src.frame_id,
                 "target_stamp": None if target is None else target.stamp,
                 "target_frame": target_frame, "pose_of": settings.base_frame or src.frame_id,
-                "mode": settings.mode, **self.stats, **self.health.inputs, **extra,
+                "mode": settings.mode, **self.stats, "registered_alone_because": dict(self.alone_because),
+                **self.health.inputs, **extra,
                 "target_up": config.gravity.target_up,
                 **(self.health.map_info if settings.mode == "map" else {}),
                 "search_region": None if region is None else {

@@ -44,6 +44,7 @@ class SourceContext:
         with self.shared.lock:
             self.report.stats["odometry_messages"] += 1
             self.history.add_odometry(stamp, T_odom_scan)
+            self.shared.lock.notify_all()   # a scan may be waiting for it (Localizer._awaits_odometry)
 
     def add_imu(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray) -> None:
         with self.shared.lock:
