@@ -116,3 +116,35 @@ def test_a_map_is_loaded_one_way_and_the_map_in_use_stays_when_a_new_one_fails(t
         localizer.stop(5.0)
     assert outcome.target_frame == localizer.shared.settings.map_frame
     assert outcome.status["map_keypoints"] == len(in_use)
+
+
+def test_a_scan_waits_for_the_odometry_that_places_it_and_no_longer_than_odometry_wait():
+    """A lidar-inertial odometry publishes a scan's pose after the scan: the worker waits for it
+    and fuses; when it never comes (the odometry stopped) the worker waits odometry_wait and
+    registers the scan alone, saying why."""
+    localizer, recorder = started(accumulate_scans=2, odometry_wait=3.0)
+    try:
+        localizer.store("target", "map", SECOND, TARGET)
+        localizer.context.add_odometry(1.0, np.eye(4))
+        localizer.store("source", "camera", SECOND, SOURCE)        # its odometry is there: no wait
+        first = recorder.wait_for_outcomes(1)
+        localizer.store("target", "map", 2 * SECOND, TARGET)
+        localizer.store("source", "camera", 2 * SECOND, SOURCE)    # the odometry stopped
+        stopped = recorder.wait_for_outcomes(2)
+        localizer.store("target", "map", 3 * SECOND, TARGET)
+        localizer.store("source", "camera", 3 * SECOND, SOURCE)
+        time.sleep(0.2)
+        localizer.context.add_odometry(3.0, np.eye(4))            # logged after its scan
+        late = recorder.wait_for_outcomes(3)
+    finally:
+        localizer.stop(5.0)
+    assert first.status["accumulation"]["alone"] == "no earlier scan to fuse"
+    alone = stopped.status["accumulation"]
+    assert alone["alone"] == "no odometry at or after the scan's stamp" and alone["waited_for_odometry_s"] >= 3.0
+    assert "the newest is 1.000 s before it" in alone["reason"]
+    fused = late.status["accumulation"]
+    assert fused["scans_fused"] == 2 and "alone" not in fused and 0 < fused["waited_for_odometry_s"] < 3.0
+    assert late.status["registered_alone_because"] == {"no earlier scan to fuse": 1,
+                                                       "no odometry at or after the scan's stamp": 1}
+    assert late.status["registrations_fused"] == 1 and late.status["registrations_alone"] == 2
+    assert late.result.accepted

@@ -268,8 +268,10 @@ def test_map_mode_with_a_large_map_and_an_initial_guess(install, ros, pairs_node
 
 def test_map_mode_fuses_a_scan_sequence_along_odometry(install, ros, pairs_node):
     """The real Livox Avia scans received up to scan_000039, with odometry in a frame that is not the
-    map's: alone that scan is not found in its map (measured: a wrong pose, withheld); fused with
-    the four before it, the node publishes the newest scan's correct pose."""
+    map's, published as a lidar-inertial odometry publishes it: each scan's pose, with the scan's
+    stamp, after the scan. Alone that scan is not found in its map (measured: a wrong pose,
+    withheld); the node waits for its odometry, fuses it with the four before it and publishes the
+    newest scan's correct pose."""
     from builtin_interfaces.msg import Time
     from conftest import DATA, require_shared_data
     from nav_msgs.msg import Odometry
@@ -292,17 +294,16 @@ def test_map_mode_fuses_a_scan_sequence_along_odometry(install, ros, pairs_node)
         assert ros.wait_for_node(TIMEOUT), node.output()
         assert ros.spin_until(lambda: odometry.get_subscription_count() > 0, TIMEOUT)
         history = query.history
-        for k, pose in enumerate(history.poses):
+        newest = len(history.scans) - 1
+        for k, (points, pose) in enumerate(zip(history.scans, history.poses, strict=True)):
+            ros.publish(source=xyz_to_cloud(points, header("scan", k)))
+            ros.spin_until(lambda: False, 0.05)   # the odometry's processing of the scan
             msg = Odometry(header=header("odom", k), child_frame_id="scan")
             q = Rotation.from_matrix(pose[:3, :3]).as_quat()
             msg.pose.pose.position.x, msg.pose.pose.position.y, msg.pose.pose.position.z = map(float, pose[:3, 3])
             (msg.pose.pose.orientation.x, msg.pose.pose.orientation.y, msg.pose.pose.orientation.z,
              msg.pose.pose.orientation.w) = map(float, q)
             odometry.publish(msg)
-        ros.spin_until(lambda: False, 1.0)
-        newest = len(history.scans) - 1
-        for k, points in enumerate(history.scans):
-            ros.publish(source=xyz_to_cloud(points, header("scan", k)))
             ros.spin_until(lambda: False, 0.3)
         assert ros.spin_until(lambda: any(p.header.stamp.sec == 1000 + newest for p in ros.poses), TIMEOUT), \
             (ros.statuses[-3:], node.output())
@@ -312,6 +313,10 @@ def test_map_mode_fuses_a_scan_sequence_along_odometry(install, ros, pairs_node)
                                           for s in ros.statuses), 10.0), ros.statuses[-3:]
         status = next(s for s in ros.statuses if s["accumulation"] and s["accumulation"]["scans_fused"] == 5)
         assert status["accumulation"]["without_odometry"] == 0 and status["odometry_messages"] == 5
+        # the first scan had no odometry to wait for; every later one waited for its own, or was dropped
+        # for a newer scan while the worker registered (dropped_stale), never registered alone
+        assert status["registered_alone_because"] == {"no odometry received": 1}, status
+        assert status["registrations_alone"] == 1 and status["registrations_fused"] == status["registrations"] - 1
     finally:
         ros.destroy_publisher(odometry)
         assert node.stop() < 5.0
