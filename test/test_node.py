@@ -1,4 +1,6 @@
 """The installed register_node, built with colcon and started as a process, over real DDS."""
+import subprocess
+import time
 from contextlib import contextmanager
 
 import numpy as np
@@ -335,6 +337,30 @@ def test_invalid_parameter_file_value_stops_with_a_clear_message(install):
     assert node.proc.wait(timeout=TIMEOUT) != 0
     assert "voxel_size" in node.output()
     assert "Traceback" not in node.output()
+
+
+@pytest.mark.parametrize("args", [["--help"], ["-h"], ["--ros-args", "--help"]])
+def test_help_prints_the_usage_and_every_parameter_without_starting_a_node(install, args):
+    exe = install / "regor_ros" / "lib" / "regor_ros" / "register_node"
+    run = subprocess.run(["bash", "-c", f"source {install}/setup.bash && exec {exe} {' '.join(args)}"],
+                         capture_output=True, text=True, timeout=TIMEOUT)
+    assert run.returncode == 0 and run.stdout.startswith("usage: register_node"), (run.stdout, run.stderr)
+    assert "features.voxel_size" in run.stdout and "odometry_wait" in run.stdout
+    assert "Traceback" not in run.stderr and "ready to register" not in run.stdout
+
+
+def test_a_misspelt_parameter_is_named_with_what_was_meant(install):
+    """rclpy ignores an override the node does not declare: the node says so, with the closest name."""
+    node = NodeProcess(install, "-p", "voxel_sise:=0.3", "-p", "features.normal_radius:=0.2", "-p", "autostart:=false")
+    try:
+        said = "parameter 'voxel_sise' is not one of register_node's: ignored; did you mean 'features.voxel_size'?"
+        deadline = time.monotonic() + TIMEOUT
+        while said not in node.output() and time.monotonic() < deadline and node.proc.poll() is None:
+            time.sleep(0.1)
+        assert said in node.output(), node.output()
+        assert "normal_radius' is not one" not in node.output()
+    finally:
+        node.stop()
 
 
 def test_colcon_installs_the_executable_configs_launch_file_and_demo(install):

@@ -6,6 +6,7 @@ with its description and range; ``preset`` picks the defaults they start from.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass
 
 import numpy as np
@@ -208,6 +209,22 @@ def declare_parameters(node) -> tuple[RegorConfig, NodeSettings]:
         core[name] = node.declare_parameter(name, default, _descriptor(name, f, default)).value
     config = RegorConfig.preset(preset).replace(core)
     return config, settings
+
+
+def unknown_overrides(node) -> list[str]:
+    """A warning for each parameter given at start (-p, --params-file) that the node does not
+    declare: rclpy ignores it silently, so a misspelt name would leave its default in force."""
+    given = getattr(node, "_parameter_overrides", {})   # rclpy keeps them here (Humble to Kilted)
+    names = [n for n in given if not node.has_parameter(n) and not n.startswith("qos_overrides.")]
+    declared = [p for p in node.get_parameters_by_prefix("")] if names else []
+    leaves = {name.rsplit(".", 1)[-1]: name for name in declared}
+    warnings = []
+    for name in sorted(names):
+        close = difflib.get_close_matches(name, declared, n=1) or \
+            [leaves[m] for m in difflib.get_close_matches(name.rsplit(".", 1)[-1], list(leaves), n=1)]
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        warnings.append(f"parameter '{name}' is not one of register_node's: ignored{hint}")
+    return warnings
 
 
 def make_settings(values: dict) -> NodeSettings:

@@ -3,6 +3,8 @@ lifecycle manager), spun until shutdown, and taken down in an order that leaves 
 registration using what destroy_node frees."""
 from __future__ import annotations
 
+import sys
+
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -13,10 +15,50 @@ from .node import STOP_WAIT_S, RegisterNode
 from .spin import PoolExecutor, spin
 from .transport import profile_variable, use_large_data_profile
 
+HELP_FLAGS = ("-h", "--help")
+
+
+USAGE = """usage: register_node [--ros-args [-p NAME:=VALUE]... [--params-file FILE] [-r FROM:=TO]...]
+
+Global point cloud registration for ROS 2 (Regor): the pose of source_cloud in target_cloud (pairs)
+or in a map (mode:=map), with no initial guess. Parameter files per preset are installed in
+share/regor_ros/config (indoor.yaml, outdoor.yaml, object.yaml); doc/node.md is the reference.
+
+examples:
+  register_node --ros-args --params-file <prefix>/share/regor_ros/config/outdoor.yaml \\
+      -r source_cloud:=/points -r target_cloud:=/map_cloud
+  register_node --ros-args -p preset:=outdoor -p mode:=map -p map_file:=/maps/site.pcd \\
+      -p map_trajectory_file:=/maps/site_tum.txt -r source_cloud:=/points -r odometry:=/odom
+
+parameters (NAME default; the core's are the indoor preset's defaults):
+"""
+
+
+def usage() -> str:
+    """The --help text: how to start it, and every parameter with its default."""
+    from dataclasses import fields
+
+    from ..core import RegorConfig
+    from .parameters import PRESET_FIELD, NodeSettings
+    rows = [("preset", PRESET_FIELD.default)] + [(f.name, f.default) for f in fields(NodeSettings)]
+    rows += [(name, default) for name, default, _ in RegorConfig.preset("indoor").parameters()]
+    return USAGE + "\n".join(f"  {name} {default!r}" for name, default in rows)
+
 
 def main(args=None) -> int:
+    argv = sys.argv if args is None else list(args)
+    ros_part = argv[argv.index("--ros-args"):] if "--ros-args" in argv else []
+    if any(a in HELP_FLAGS for a in argv[1:]):
+        if any(a in HELP_FLAGS for a in ros_part):
+            print("register_node: --help goes before --ros-args (ROS arguments take no --help)", file=sys.stderr)
+        print(usage())
+        return 0
     profile = use_large_data_profile()
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:   # rcl's UnknownROSArgsError and the like: a malformed command line
+        print(f"register_node: the ROS arguments cannot be used: {exc} (register_node --help)", file=sys.stderr)
+        return 2
     try:
         node = RegisterNode()
         if profile:
