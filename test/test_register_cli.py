@@ -100,6 +100,9 @@ def test_json_output(real_files):
     (lambda d: np.save(d / "few.npy", np.zeros((5, 3))) or d / "few.npy", "too few points to register (5;"),
     (lambda d: np.save(d / "heap.npy", np.zeros((500, 3))) or d / "heap.npy", "after downsampling"),
     (lambda d: (d / "bad.pcd").write_text("garbage\n") and d / "bad.pcd", "no points could be read"),  # open3d quiet
+    (lambda d: np.save(d / "none.npy", np.zeros((0, 3), np.float32)) or d / "none.npy", "no points (an empty array)"),
+    (lambda d: (d / "random.bin").write_bytes(np.random.default_rng(0).bytes(4000)) and d / "random.bin",
+     "not a point cloud (random bytes"),
 ])
 def test_bad_inputs_exit_nonzero_with_one_line(tmp_path, make, message):
     np.save(tmp_path / "ok.npy", POINTS)
@@ -162,3 +165,19 @@ def test_the_preset_help_names_the_sensors_and_the_default():
     proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.register_cli", "--help"],
                           capture_output=True, text=True, timeout=300)
     assert "default: indoor" in proc.stdout and "LiDAR" in proc.stdout
+
+
+@pytest.mark.parametrize("tool, args", [
+    ("verify_cli", ["{empty}", "{ok}", "{pose}"]),
+    ("verify_cli", ["{ok}", "{empty}", "{pose}"]),
+    ("relocalize_client", ["--scan", "{empty}", "--timeout", "1"]),
+])
+def test_an_empty_npy_is_refused_in_one_line_by_every_tool(tmp_path, tool, args):
+    files = {"empty": tmp_path / "empty.npy", "ok": tmp_path / "ok.npy", "pose": tmp_path / "pose.txt"}
+    np.save(files["empty"], np.zeros((0, 3), np.float32))
+    np.save(files["ok"], POINTS)
+    np.savetxt(files["pose"], np.eye(4))
+    proc = subprocess.run([sys.executable, "-m", f"regor_ros.tools.{tool}", *[a.format(**files) for a in args]],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "empty.npy: no points (an empty array)" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr
