@@ -107,3 +107,19 @@ def test_what_is_not_plausibly_a_map_is_refused_with_what_was_read(map_files, tm
         assert str(refused) in str(error.value)
     assert not list(tmp_path.rglob("*.regor-cache.npz"))
     assert len(load_map_file(map_file, config, cache=False).prepared) > 1000
+
+
+def test_a_map_too_sparse_for_the_preset_is_told_which_preset_fits(tmp_path):
+    """A room's walls sampled about 0.12 m apart (a LiDAR map's spacing) refused by the indoor
+    preset (5 cm voxels) with the preset whose scale fits, which then prepares it."""
+    rng = np.random.default_rng(0)
+    walls = []
+    for axis in range(3):
+        for side in (0.0, 1.0):
+            wall = rng.uniform(0.0, 1.0, size=(4000, 3))
+            wall[:, axis] = side
+            walls.append(wall * [12.0, 10.0, 4.0])
+    np.save(tmp_path / "room.npy", np.vstack(walls))
+    with pytest.raises(CloudFileError, match="not a map of surfaces .*: the outdoor preset's scale fits"):
+        load_map_file(tmp_path / "room.npy", RegorConfig.preset("indoor"), cache=False)
+    assert len(load_map_file(tmp_path / "room.npy", RegorConfig.preset("outdoor"), cache=False).prepared) > 1000

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..core import MAX_ABS_COORDINATE, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
+from ..core import MAX_ABS_COORDINATE, PRESETS, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
 from .cloud_io import CloudFileError, read_cloud
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
@@ -101,7 +101,23 @@ def check_surfaces(prepared: PreparedCloud, map_file: Path) -> None:
         raise CloudFileError(
             f"{map_file}: {prepared.input_size} points whose keypoints have a median of {neighbours:g} neighbours "
             f"within features.normal_radius={features.normal_radius} m; a line gives {line:g} and a surface more: "
-            "not a map of surfaces (a path, scattered points, or the wrong units?)")
+            "not a map of surfaces (a path, scattered points, or the wrong units?)" + _scale_hint(prepared, sample))
+
+
+def _scale_hint(prepared: PreparedCloud, sample: np.ndarray) -> str:
+    """Which preset's scale fits a map too sparse for the one in use: the finest whose voxel is at
+    least the map's point spacing (the median distance between neighbouring keypoints), so that
+    its keypoints have neighbours on their surface."""
+    spacing = float(np.median(prepared.tree.query(sample, k=2)[0][:, 1]))
+    voxels = sorted((RegorConfig.preset(p).features.voxel_size, p) for p in PRESETS)
+    fits = [(voxel, name) for voxel, name in voxels if voxel >= spacing]
+    in_use = prepared.config.voxel_size
+    if fits and fits[0][0] > in_use:
+        return (f"; its points are about {spacing:.3g} m apart: the {fits[0][1]} preset's scale fits "
+                f"(features.voxel_size={fits[0][0]:g} m)")
+    if not fits:
+        return f"; its points are about {spacing:.3g} m apart: try features.voxel_size of at least that"
+    return ""
 
 
 @dataclass
