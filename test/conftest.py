@@ -6,6 +6,7 @@ skipped with the reason. Under CI (CI=true) a missing folder is an error instead
 """
 import json
 import os
+import tempfile
 import subprocess
 from pathlib import Path
 
@@ -24,6 +25,8 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(20 + os.getpid() % 80))
 if not (os.environ.get("FASTDDS_DEFAULT_PROFILES_FILE") or os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")):
     for variable in ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE"):
         os.environ[variable] = str(REPO / "config" / "fastdds_large_data.xml")
+# prepared-map caches of this run (the node's map_cache, in the XDG cache folder) in a folder of its own
+os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="regor-test-cache-")
 DATA = Path(os.environ.get("REGOR_DATA", REPO.parent / "shared" / "data"))
 PAIRS = DATA / "pairs"
 DEMO_PAIR = "3dmatch_redkitchen_5_6_ds"  # bundled in demo/

@@ -1,4 +1,6 @@
 """A map from files: cloud and TUM trajectory read, the prepared map cached, reused and rebuilt."""
+from pathlib import Path
+
 import numpy as np
 import open3d as o3d
 import pytest
@@ -7,7 +9,7 @@ from conftest import DATA, load_map_query
 from regor_ros.core import RegorConfig, register
 from regor_ros.core.metrics import is_success
 from regor_ros.io.cloud_io import CloudFileError
-from regor_ros.io.map_file import cache_paths, load_map_file, read_trajectory
+from regor_ros.io.map_file import load_map_file, read_trajectory
 
 SEQUENCE = "fastlio_avia_hku2"
 
@@ -37,14 +39,18 @@ def test_tum_trajectory_is_read_and_bad_files_say_why(tmp_path, map_files):
         read_trajectory(bad)
 
 
-def test_the_prepared_map_is_cached_reused_and_rebuilt_when_stale(map_files, tmp_path):
+def test_the_prepared_map_is_cached_once_for_each_key_and_rebuilt_when_unreadable(map_files, tmp_path):
+    """The cache lives in the cache folder, never beside the user's map: one file for each map,
+    trajectory and feature settings, so switching between them rewrites none."""
     map_file, trajectory_file, scan, truth = map_files
     config = RegorConfig.preset("outdoor")
     warnings = []
-    first = load_map_file(map_file, config, trajectory_file, warn=warnings.append)
+    cache_dir = tmp_path / "cache"
+    first = load_map_file(map_file, config, trajectory_file, cache_dir=cache_dir, warn=warnings.append)
     assert first.info["map_cache"] == "built" and not warnings
-    assert first.info["map_cache_file"] == str(map_file) + ".regor-cache.npz"
-    second = load_map_file(map_file, config, trajectory_file, warn=warnings.append)
+    assert Path(first.info["map_cache_file"]).parent == cache_dir
+    assert not list(map_file.parent.glob("*.regor-cache.npz"))
+    second = load_map_file(map_file, config, trajectory_file, cache_dir=cache_dir, warn=warnings.append)
     assert second.info["map_cache"] == "loaded" and not warnings
     fresh, cached = register(scan, first.prepared, config), register(scan, second.prepared, config)
     assert fresh.accepted and is_success(fresh.transform, truth, "outdoor")
@@ -52,31 +58,35 @@ def test_the_prepared_map_is_cached_reused_and_rebuilt_when_stale(map_files, tmp
     assert cached.summary()["visibility"] == fresh.summary()["visibility"]
     assert len(second.prepared.map_view.trajectory) == len(first.prepared.map_view.trajectory) > 0
 
-    # other feature settings: the cache is for another key, rebuilt with a warning
+    # other feature settings, or no trajectory: a cache of their own, the first one kept
     coarser = config.replace({"features.voxel_size": 0.4})
-    assert load_map_file(map_file, coarser, trajectory_file, warn=warnings.append).info["map_cache"] == "built"
-    assert "another map file or other feature settings" in warnings[-1]
+    other = load_map_file(map_file, coarser, trajectory_file, cache_dir=cache_dir, warn=warnings.append)
+    alone = load_map_file(map_file, coarser, None, cache_dir=cache_dir, warn=warnings.append)
+    assert other.info["map_cache"] == alone.info["map_cache"] == "built" and not warnings
+    assert len({first.info["map_cache_file"], other.info["map_cache_file"], alone.info["map_cache_file"]}) == 3
+    again = load_map_file(map_file, config, trajectory_file, cache_dir=cache_dir, warn=warnings.append)
+    assert again.info["map_cache"] == "loaded"
     # a truncated file: unreadable, rebuilt
-    cache = map_file.with_name(map_file.name + ".regor-cache.npz")
+    cache = Path(other.info["map_cache_file"])
     cache.write_bytes(cache.read_bytes()[:1000])
-    assert load_map_file(map_file, coarser, trajectory_file, warn=warnings.append).info["map_cache"] == "built"
+    assert load_map_file(map_file, coarser, trajectory_file, cache_dir=cache_dir,
+                         warn=warnings.append).info["map_cache"] == "built"
     assert "unreadable" in warnings[-1]
-    # no trajectory: another key as well
-    assert load_map_file(map_file, coarser, None, warn=warnings.append).info["map_cache"] == "built"
 
 
-def test_the_cache_goes_to_the_cache_folder_when_the_map_folder_refuses_it(map_files, tmp_path, monkeypatch):
+def test_the_cache_goes_to_the_xdg_cache_folder_and_says_when_it_cannot_be_written(map_files, tmp_path, monkeypatch):
     map_file = tmp_path / "map.pcd"
     map_file.write_bytes(map_files[0].read_bytes())
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     config = RegorConfig.preset("outdoor").replace({"features.voxel_size": 0.5})
-    beside, fallback = cache_paths(map_file, None)
-    beside.mkdir()  # something that is not a writable file stands where the cache would go
+    built = load_map_file(map_file, config)
+    assert built.info["map_cache"] == "built"
+    assert Path(built.info["map_cache_file"]).parent == tmp_path / "xdg" / "regor_ros"
+    assert load_map_file(map_file, config).info["map_cache"] == "loaded"
+    (tmp_path / "file").write_text("")
     warnings = []
-    built = load_map_file(map_file, config, warn=warnings.append)
-    assert built.info["map_cache"] == "built" and built.info["map_cache_file"] == str(fallback)
-    assert str(tmp_path / "xdg" / "regor_ros") in str(fallback) and "not written" in warnings[0]
-    assert load_map_file(map_file, config, warn=warnings.append).info["map_cache"] == "loaded"
+    refused = load_map_file(map_file, config, cache_dir=tmp_path / "file" / "cache", warn=warnings.append)
+    assert refused.info["map_cache"] == "not written" and "map cache not written" in warnings[0]
 
 
 def test_cache_off_and_a_missing_file(map_files, tmp_path):

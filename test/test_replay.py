@@ -50,7 +50,6 @@ def test_an_mcap_recording_is_replayed_with_odometry_and_scored_against_its_refe
     assert "4 relocalizations fused 2-5 scans, 1 registered alone: 1 no earlier scan to fuse" in summary
     assert (tmp_path / "out" / "map.png").stat().st_size > 10_000
     assert summary in capsys.readouterr().out
-    assert not (WINTER / "map.npy.regor-cache.npz").exists()   # --set map_cache=false is a boolean false
 
 
 def test_a_sqlite3_recording_without_odometry_every_two_tenths_of_a_second(tmp_path):

@@ -2,12 +2,11 @@
 
 Localizers load their map from a path (hdl_global_localization, lidar_localization_ros2); SLAM
 packages save the map as a point cloud and their trajectory in TUM format. The map is prepared
-once and the result cached beside the file (or in a cache folder when that is not writable), so
-the next start loads it instead of preparing it again.
+once and the result cached in a cache folder ($XDG_CACHE_HOME/regor_ros), one file for each map,
+trajectory and feature settings, so the next start loads it instead of preparing it again.
 """
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -25,7 +24,7 @@ SURFACE_SAMPLE = 3000   # keypoints whose neighbourhoods decide whether the map 
 
 
 def default_cache_dir() -> Path:
-    """Where caches go when the map's own folder is not writable (XDG cache home)."""
+    """Where caches go unless map_cache_dir says otherwise (XDG cache home)."""
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "regor_ros"
 
 
@@ -57,13 +56,11 @@ def write_trajectory(path, poses: np.ndarray, stamps: np.ndarray | None = None) 
                header="t x y z qx qy qz qw")
 
 
-def cache_paths(map_file: Path, cache_dir: Path | None) -> list[Path]:
-    """Where the map's cache may be, in order: beside the map (unless a folder is given), then the
-    cache folder (named after the map's absolute path, so two maps never share a file)."""
-    folder = cache_dir or default_cache_dir()
-    tag = hashlib.sha1(str(map_file.resolve()).encode()).hexdigest()[:12]
-    aside = [] if cache_dir else [map_file.with_name(map_file.name + CACHE_SUFFIX)]
-    return aside + [folder / f"{map_file.stem}-{tag}{CACHE_SUFFIX}"]
+def cache_file(map_file: Path, key: str, cache_dir: Path | None) -> Path:
+    """Where the prepared map for ``key`` (map_cache.map_key: the map's and trajectory's content
+    and the feature settings) is cached: one file a key in the cache folder, never beside the
+    user's map, so runs with other settings keep their own and none rewrites another's."""
+    return (cache_dir or default_cache_dir()) / f"{map_file.stem}-{key[:16]}{CACHE_SUFFIX}"
 
 
 def read_map(map_file: Path) -> np.ndarray:
@@ -129,8 +126,8 @@ class MapFromFile:
 def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bool = True,
                   cache_dir=None, warn: Callable[[str], None] = print) -> MapFromFile:
     """The prepared map of ``map_file`` (any format read_cloud reads), from its cache when one
-    matches the file, the trajectory and the feature settings; otherwise prepared and cached. A
-    stale or unreadable cache is rebuilt with a warning. Raises RegistrationError (a
+    matches the file, the trajectory and the feature settings (cache_file); otherwise prepared and
+    cached. An unreadable cache is rebuilt with a warning. Raises RegistrationError (a
     CloudFileError for files, and for a file that is not plausibly a map: read_map,
     check_surfaces) with a message a user can act on."""
     map_file = Path(map_file).expanduser()
@@ -139,31 +136,32 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
         if path is not None and not path.is_file():
             raise CloudFileError(f"{path}: no such file")
     info = {"map_file": str(map_file), "map_trajectory_file": str(trajectory_file or "")}
-    paths = cache_paths(map_file, Path(cache_dir).expanduser() if cache_dir else None) if cache else []
-    key = map_key(file_digest(map_file), file_digest(trajectory_file), config.features) if cache else ""
-    for path in paths:
+    path = None
+    if cache:
+        key = map_key(file_digest(map_file), file_digest(trajectory_file), config.features)
+        path = cache_file(map_file, key, Path(cache_dir).expanduser() if cache_dir else None)
         if path.is_file():
             try:
                 prepared = load_map(path, key, config.features)
             except CacheError as exc:
                 warn(f"map cache not used, the map is prepared again: {exc}")
-                continue
-            info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
-            return MapFromFile(prepared, info)
+            else:
+                info.update(map_cache="loaded", map_cache_file=str(path), map_cache_bytes=path.stat().st_size)
+                return MapFromFile(prepared, info)
     points = read_map(map_file)
     trajectory = read_trajectory(trajectory_file)[1] if trajectory_file else None
     prepared = prepare_cloud(points, config, "map", trajectory=trajectory)
     del points   # the raw map: not needed while the cache is written
-    check_surfaces(prepared, map_file)
-    info["map_cache"] = "not written" if cache else "off"
-    for path in paths:
+    check_surfaces(prepared, map_file)   # a map refused writes nothing
+    info["map_cache"] = "off"
+    if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             size = save_map(prepared, path, key)
         except OSError as exc:
             warn(f"map cache not written to {path}: {exc}")
-            continue
-        info.update(map_cache="built", map_cache_file=str(path), map_cache_bytes=size)
-        break
+            info["map_cache"] = "not written"
+        else:
+            info.update(map_cache="built", map_cache_file=str(path), map_cache_bytes=size)
     return MapFromFile(prepared, info)
 

@@ -79,12 +79,11 @@ class NodeSettings:
                                       "from them, and with features.normals_toward_sensors (the outdoor preset) "
                                       "the map's normals face them, as each scan's face its sensor; '' = none: "
                                       "both keep the solver's signs (read only)")
-    map_cache: bool = param(True, "keep the prepared map_file in a cache file (beside the map, or in "
-                             "map_cache_dir) and load it at the next start when map, trajectory and feature "
-                             "settings are unchanged; a stale or unreadable cache is rebuilt (read only)")
-    map_cache_dir: str = param("", "folder for the map cache; '' = beside the map file, or "
-                                "$XDG_CACHE_HOME/regor_ros (~/.cache/regor_ros) when that folder is not "
-                                "writable (read only)")
+    map_cache: bool = param(True, "keep the prepared map_file in a cache (map_cache_dir), one file for each map, "
+                             "trajectory and feature settings, and load it at the next start that matches; an "
+                             "unreadable cache is rebuilt, a map refused writes none (read only)")
+    map_cache_dir: str = param("", "folder for the map cache; '' = $XDG_CACHE_HOME/regor_ros (~/.cache/regor_ros) "
+                                "(read only)")
 
     initial_guess_sigmas: float = param(3.0, "an initial_guess restricts the search to this many standard "
                                              "deviations of "
