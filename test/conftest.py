@@ -6,8 +6,8 @@ skipped with the reason. Under CI (CI=true) a missing folder is an error instead
 """
 import json
 import os
-import tempfile
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np

@@ -22,7 +22,7 @@ from typing import TextIO
 
 from ..core import PRESETS, ConfigError, RegorConfig
 from .batch_list import ListError, PairRow, read_pairs
-from .register_cli import parse_overrides
+from .register_cli import DEFAULT_PRESET, PRESET_HELP, parse_overrides
 
 IN_FLIGHT_PER_THREAD = 2  # one running, one queued: a worker never waits for the next pair
 COUNTED = ("written", "accepted", "errors", "reused")  # what a run reports
@@ -243,8 +243,8 @@ def main(argv=None) -> int:
                         help="one JSON row per pair; rows already there are skipped (resume)")
     parser.add_argument("--scans", metavar="DIR", help="folder the list's file names are in (default: the list's "
                                                        "folder)")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor",
-                        help="for rows that name none (default: %(default)s)")
+    parser.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET,
+                        help=f"for rows that name none: {PRESET_HELP}")
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter of every row's preset (repeatable)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,

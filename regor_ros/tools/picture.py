@@ -10,6 +10,7 @@ PICTURE_SIZE = (1500, 900)  # pixels
 MAX_POINTS = 15000
 MAX_LINES = 300
 VIEWS = (("top (x, y)", (0, 1)), ("side (x, z)", (0, 2)))
+AGREE, DISAGREE = (0.1, 0.7, 0.2, 0.9), (0.9, 0.1, 0.1, 0.35)   # RGBA of the correspondence lines
 
 
 def _thin(points: np.ndarray, rng) -> np.ndarray:
@@ -21,6 +22,7 @@ def render(source: np.ndarray, target: np.ndarray, result: RegistrationResult, p
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
 
     rng = np.random.default_rng(0)
     T = result.transform
@@ -40,17 +42,24 @@ def render(source: np.ndarray, target: np.ndarray, result: RegistrationResult, p
             ax = axes[row, col]
             ax.scatter(t[:, a], t[:, b], s=0.3, c="tab:blue", alpha=0.5, linewidths=0, label="target")
             ax.scatter(s[:, a], s[:, b], s=0.3, c="tab:orange", alpha=0.5, linewidths=0, label="source")
-            if title == "correspondences":
+            if title == "correspondences":   # the disagreeing matches under the agreeing ones
                 segments = np.stack([match_src[pick][:, [a, b]], result.initial.target[pick][:, [a, b]]], axis=1)
-                colours = np.where(inlier[pick, None], [[0.1, 0.7, 0.2, 0.8]], [[0.9, 0.1, 0.1, 0.4]])
-                ax.add_collection(LineCollection(segments, colors=colours, linewidths=0.6))
+                agree = inlier[pick]
+                ax.add_collection(LineCollection(segments[~agree], colors=[DISAGREE], linewidths=0.5, zorder=2))
+                ax.add_collection(LineCollection(segments[agree], colors=[AGREE], linewidths=0.7, zorder=3))
+            names = "xyz"
             ax.set_title(f"{title}: {view}", fontsize=10)
+            ax.set_xlabel(f"{names[a]} [m]", fontsize=8)
+            ax.set_ylabel(f"{names[b]} [m]", fontsize=8)
             ax.set_aspect("equal", adjustable="datalim")
             ax.tick_params(labelsize=7)
     axes[0, 0].legend(loc="upper right", fontsize=7, markerscale=15)
+    axes[0, 2].legend(handles=[Line2D([], [], color=AGREE, label="feature matches that agree with the pose"),
+                               Line2D([], [], color=DISAGREE, label="feature matches that do not")],
+                      loc="upper right", fontsize=7)
     verdict = "accepted" if result.accepted else f"NOT accepted: {result.reason}"
     fig.suptitle(f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
-                 f"{result.feature_inliers} feature matches agree (green; red: disagree) - {verdict}", fontsize=11)
+                 f"{result.feature_inliers} feature matches agree - {verdict}", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

@@ -21,6 +21,11 @@ from ..core import (
 )
 from ..io.cloud_io import FORMATS, read_cloud
 
+DEFAULT_PRESET = "indoor"   # register_node's, and every tool's: one rule
+PRESET_HELP = ("the sensor's parameter set: indoor (RGB-D cameras, rooms; 5 cm voxels), outdoor (LiDAR; 30 cm), "
+               "object (scanned objects); default: indoor in every tool, as register_node's (a map at the wrong "
+               "scale is refused with the preset that fits)")
+
 
 def parse_overrides(items):
     overrides = {}
@@ -68,9 +73,7 @@ def main(argv=None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("source", help="cloud to move")
     parser.add_argument("target", help="cloud it is registered to")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor",
-                        help="parameter set for the sensor: indoor (RGB-D fragments, 5 cm voxels), outdoor "
-                             "(LiDAR, 30 cm), object (scanned objects); default: %(default)s")
+    parser.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help=PRESET_HELP)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter, e.g. --set voxel_size=0.04 (repeatable)")
     for side in ("source", "target"):

@@ -27,15 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core import PRESETS, ConfigError, RegistrationError, RegorConfig
+from .register_cli import DEFAULT_PRESET, PRESET_HELP, parse_overrides
 
 EPILOG = """examples:
   regor-replay drive.mcap --map site.pcd --map-trajectory site_tum.txt --scan-topic /points \\
       --odom-topic /odom --reference-topic /ground_truth --preset outdoor --out replay/
   regor-replay bag_folder --map site.pcd --scan-topic /livox/lidar --imu-topic /livox/imu \\
-      --set gravity.target_up="0 0 1" --reference-file site_ground_truth.csv --every 5 --out replay/
-
-the preset: the node's default, indoor (RGB-D cameras, rooms), unless --preset says otherwise;
-LiDAR wants --preset outdoor (a map at the wrong scale is refused with the preset that fits)."""
+      --set gravity.target_up="0 0 1" --reference-file site_ground_truth.csv --every 5 --out replay/"""
 REFERENCE_TOLERANCE_S = 0.1   # a reference pose counts for a scan when this close to its stamp
 READ_AHEAD_TOLERANCES = 2.0   # messages up to this many odometry_tolerance after a scan may place it (pose_at)
 PROGRESS_PERIOD_S = 10.0
@@ -406,12 +404,13 @@ def picture(path: Path, surface: np.ndarray, table: list[dict], reference) -> No
     fig, ax = plt.subplots(figsize=(8, 8))
     inside = surface[((surface[:, :2] >= lo) & (surface[:, :2] <= hi)).all(axis=1)]
     sample = inside[:: max(1, len(inside) // 200_000)]
-    ax.scatter(sample[:, 0], sample[:, 1], s=0.2, c="0.75", linewidths=0, zorder=1, label="map")
+    ax.scatter(sample[:, 0], sample[:, 1], s=0.4, c="0.6", linewidths=0, zorder=1, label="map")
     for accepted, agrees, colour, label in ((True, True, "tab:green", "published, agrees"),
                                             (True, False, "tab:red", "published, does not agree"),
                                             (True, None, "tab:blue", "published (no reference)"),
                                             (False, None, "tab:orange", "withheld (the pose it found)")):
-        chosen = [r for r in table if "x" in r and r["accepted"] == accepted and r.get("agrees") == agrees]
+        chosen = [r for r in table if "x" in r and r["accepted"] == accepted
+                  and (not accepted or r.get("agrees") == agrees)]
         if chosen:
             ax.scatter([r["x"] for r in chosen], [r["y"] for r in chosen], s=16 if accepted else 10, c=colour,
                        marker="o" if accepted else "x", zorder=2, label=f"{label} ({len(chosen)})")
@@ -449,9 +448,7 @@ def main(argv=None) -> int:
     parser.add_argument("--tracked-topic", help="the localization stack's pose (PoseWithCovarianceStamped, "
                                                 "PoseStamped or Odometry in the map frame): the watchdog checks it "
                                                 "on every scan (default: none)")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor",
-                        help="the sensor's parameter set: indoor (RGB-D, rooms), outdoor (LiDAR), object; "
-                             "default: %(default)s, as the node's")
+    parser.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help=PRESET_HELP)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a core or node parameter, e.g. --set accumulate_scans=3 (repeatable)")
     parser.add_argument("--every", type=float, default=0.0, metavar="SECONDS",
@@ -462,7 +459,6 @@ def main(argv=None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     args = parser.parse_args(argv)
     from ..ros.parameters import apply_changes, make_settings, typed_settings  # after parsing: --help at once
-    from .register_cli import parse_overrides
 
     try:
         values = {"mode": "map", "map_file": str(args.map), "map_trajectory_file": str(args.map_trajectory or ""),

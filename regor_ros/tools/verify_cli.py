@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core import PRESETS, ConfigError, RegistrationError, RegorConfig, parse_viewpoint
 from ..io.cloud_io import FORMATS, read_cloud
-from .register_cli import parse_overrides
+from .register_cli import DEFAULT_PRESET, PRESET_HELP, parse_overrides
 
 EPILOG = f"""examples:
   regor-verify scan.pcd map.pcd pose.txt --map-trajectory map_tum.txt --preset outdoor
@@ -57,8 +57,7 @@ def main(argv=None) -> int:
     parser.add_argument("source", help="the scan (or cloud) the pose places")
     parser.add_argument("target", help="the map, or a second scan")
     parser.add_argument("pose", help="file with the pose to check, T_target_source (see below)")
-    parser.add_argument("--preset", choices=PRESETS, default="indoor",
-                        help="parameter set for the sensor (default: %(default)s)")
+    parser.add_argument("--preset", choices=PRESETS, default=DEFAULT_PRESET, help=PRESET_HELP)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="override a parameter, e.g. --set verification.max_correction=0.3 (repeatable)")
     parser.add_argument("--map-trajectory", metavar="TUM",
