@@ -59,7 +59,6 @@ class Localizer:
             self._check_due = False                        # verify_rate's timer asked for a check
             self._checked = 0                              # the serial of the last source checked: each once
             self._relocalizing = False                     # the watchdog asked for the next registration
-            self._waiting_since: float | None = None      # the worker has waited for odometry since (monotonic)
             self.report.health.watchdog = None
             self.report.health.map_info = {}
 
@@ -192,37 +191,20 @@ class Localizer:
         if (self._check_due and maps.prepared is not None and source is not None and source.serial > self._checked
                 and not isinstance(job, PrepareMap)):
             job = CheckPose(source)
-        if isinstance(job, (Register, CheckPose)) and self._awaits_odometry(job.source) > 0:
+        if isinstance(job, (Register, CheckPose)) and self.context.awaits_odometry(job.source.stamp) > 0:
             return None
         return job
-
-    def _awaits_odometry(self, source: Cloud) -> float:
-        """Seconds the worker still waits before taking ``source``: it is to be fused, odometry has
-        been received, but none at or after its stamp yet (a lidar-inertial odometry publishes a
-        scan's pose after the scan). The clock starts when the worker could first have taken a
-        source and runs on when a newer scan replaces the waiting one, so the worker never idles
-        longer than odometry_wait (odometry that stopped costs that, once a registration)."""
-        settings, history = self.shared.settings, self.context.history
-        if settings.accumulation().scans < 2 or not history.has_odometry or history.covers(source.stamp):
-            return 0.0
-        now = time.monotonic()
-        if self._waiting_since is None:
-            self._waiting_since = now
-        return max(0.0, settings.odometry_wait - (now - self._waiting_since))
 
     def _work(self) -> None:
         while True:
             with self.lock:
                 job = self._next_job()
                 while job is None and not self.shared.stopping:
-                    source = self._inputs.source
-                    waiting = 0.0 if source is None or self._waiting_since is None else self._awaits_odometry(source)
-                    self.lock.wait(waiting or 0.5)   # odometry's arrival wakes it (SourceContext.add_odometry)
+                    self.lock.wait(self.context.still_waiting() or 0.5)   # odometry's arrival wakes it too
                     job = self._next_job()
                 if self.shared.stopping:
                     return
-                waited = 0.0 if self._waiting_since is None else time.monotonic() - self._waiting_since
-                self._waiting_since = None
+                waited = self.context.end_wait()
                 config, settings, hint = self.shared.config, self.shared.settings, self.context.hint
                 if isinstance(job, Register):
                     self._inputs.taken(job)

@@ -112,6 +112,8 @@ class Report:
         mounting, with a base_frame) when accepted or publish_rejected, and the answer's line."""
         figures = (f"{result.num_inliers} inliers, fitness {result.fitness:.2f}, "
                    f"{result.timings['total']:.2f} s")
+        if accumulation and accumulation.get("alone"):
+            figures += f"; {accumulation['reason']}"
         if result.accepted:
             alone = ", which single it out among the other answers" if result.verdict.singled_out else ""
             figures = f"carried by its {result.verdict.carried_by}{alone}, {figures}"

@@ -1,8 +1,10 @@
 """What a registration of the newest scan is given beside it, without ROS: the scans before it
-fused along odometry (accumulate_scans), its up direction from the IMU (the gravity prior) and
-the hint of where it is (initial_guess)."""
+fused along odometry (accumulate_scans; the worker waits up to odometry_wait for the odometry
+that places the newest), its up direction from the IMU (the gravity prior) and the hint of where
+it is (initial_guess)."""
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +33,8 @@ class SourceContext:
         self.history = ScanHistory(self._capacity())
         self.imu = ImuUp() if shared.settings.imu_topic else None
         self.hint: Hint | None = None
+        self._waiting_since: float | None = None   # the worker waits for odometry since (monotonic), or None
+        self._deadline = 0.0
 
     def _capacity(self) -> int:
         """Scans kept for accumulation: twice the scans fused, so ones without odometry can be skipped."""
@@ -45,6 +49,32 @@ class SourceContext:
             self.report.stats["odometry_messages"] += 1
             self.history.add_odometry(stamp, T_odom_scan)
             self.shared.lock.notify_all()   # a scan may be waiting for it (Localizer._awaits_odometry)
+
+    def awaits_odometry(self, stamp: float) -> float:
+        """Seconds the worker still waits before taking the source stamped ``stamp`` (the caller
+        holds the lock): it is to be fused, odometry has been received, but none at or after its
+        stamp yet (a lidar-inertial odometry publishes a scan's pose after the scan). The clock
+        starts when the worker could first have taken a source and runs on when a newer scan
+        replaces the waiting one, so the worker never idles longer than odometry_wait (odometry
+        that stopped costs that, once a registration)."""
+        settings = self.shared.settings
+        if settings.accumulation().scans < 2 or not self.history.has_odometry or self.history.covers(stamp):
+            return 0.0
+        now = time.monotonic()
+        if self._waiting_since is None:
+            self._waiting_since = now
+        self._deadline = self._waiting_since + settings.odometry_wait
+        return max(0.0, self._deadline - now)
+
+    def still_waiting(self) -> float:
+        """Seconds left of a wait for odometry under way, 0 when none (the caller holds the lock)."""
+        return 0.0 if self._waiting_since is None else max(0.0, self._deadline - time.monotonic())
+
+    def end_wait(self) -> float:
+        """The worker takes a job: the seconds it waited for odometry, and the clock stopped."""
+        waited = 0.0 if self._waiting_since is None else time.monotonic() - self._waiting_since
+        self._waiting_since = None
+        return waited
 
     def add_imu(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray) -> None:
         with self.shared.lock:

@@ -54,16 +54,20 @@ def _cell(value) -> str:
 def parameter_tables() -> str:
     """Markdown tables of the node's settings and of every core parameter per preset."""
     from ..ros.parameters import NodeSettings  # the node's settings live beside its ROS glue
-    lines = [TABLES_START, "", "Node settings:", "", "| parameter | default | meaning |", "|---|---|---|"]
+    lines = [TABLES_START, "", "### Node settings", "", "| parameter | default | meaning |", "|---|---|---|"]
     for f in dataclasses.fields(NodeSettings):
         lines.append(f"| `{f.name}` | {_cell(f.default)} | {f.metadata['description']} |")
     presets = {name: RegorConfig.preset(name).to_flat() for name in PRESETS}
-    lines += ["", "Core settings (indoor = the paper's 3DMatch settings, outdoor = its KITTI settings, "
+    lines += ["", "### Core settings", "", "Indoor = the paper's 3DMatch settings, outdoor = its KITTI settings, "
               "object = indoor scaled by 0.06 for table-top objects; where we deviate from the "
-              "authors, the meaning says so and gives their value):", "",
-              "| parameter | " + " | ".join(PRESETS) + " | meaning [valid range] |",
-              "|---|" + "---|" * len(PRESETS) + "---|"]
+              "authors, the meaning says so and gives their value."]
+    section = None
     for name, value, f in RegorConfig().parameters():
+        if name.split(".")[0] != section:
+            section = name.split(".")[0]
+            lines += ["", f"#### `{section}`", "",
+                      "| parameter | " + " | ".join(PRESETS) + " | meaning [valid range] |",
+                      "|---|" + "---|" * len(PRESETS) + "---|"]
         low, high = f.metadata["range"]
         valid = f" [{low:g}, {high:g}]" if low is not None and not isinstance(value, bool) else ""
         cells = " | ".join(_cell(presets[p][name]) for p in PRESETS)
