@@ -63,6 +63,7 @@ def test_a_sqlite3_recording_without_odometry_every_two_tenths_of_a_second(tmp_p
 
 def test_the_reference_from_a_tum_file_scores_as_the_topic_does(tmp_path):
     from regor_ros.io.map_file import write_trajectory
+    require_shared_data("the replay tests")
     sequence = load_recorded_sequence(WINTER).part(0, SCANS)
     bag = winter(tmp_path / "winter")
     write_trajectory(tmp_path / "truth.txt", sequence.truth, sequence.stamps)
@@ -97,8 +98,8 @@ def test_wheel_odometry_at_50_hz_places_the_10_hz_scans_between_its_messages(tmp
 
 
 def test_a_gap_in_the_odometry_and_an_odometry_that_stops_are_said(tmp_path):
-    sequence = load_recorded_sequence(AVIA).part(14, 6) if AVIA.exists() else None
     require_shared_data("the replay tests")
+    sequence = load_recorded_sequence(AVIA).part(14, 6)
     since = sequence.stamps - sequence.stamps[0]
     gap = avia(tmp_path / "gap", odometry="after", odometry_rate=50.0,
                odometry_gap=(since[3] - 0.15, since[3] + 0.15))
