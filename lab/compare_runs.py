@@ -6,6 +6,8 @@ count as the same, and the largest relative difference is printed. With ``--verd
 change that may move poses: each method's tally (runs, correct, published correct, published
 wrong) before and after, and every run whose verdict moved, matched by its name, not its row.
 
+Either side's CSVs may be compressed (.csv.gz, as results/ keeps them).
+
 Usage: python lab/compare_runs.py [--tolerance REL | --verdicts] BEFORE_DIR AFTER_DIR
 (exit 1 when any row differs; with --verdicts, when any verdict does)
 """
@@ -13,6 +15,8 @@ import argparse
 import csv
 import math
 from pathlib import Path
+
+from regor_ros.tools.bench_results import open_run, run_files, same_run
 
 
 def machine_dependent(column: str) -> bool:
@@ -35,7 +39,7 @@ def differences(before: Path, after: Path, tolerance: float, largest: list) -> d
     ``largest`` gets the largest relative difference within the tolerance."""
     if not after.exists():
         return {"(no such file)": 1}
-    old, new = list(csv.DictReader(before.open())), list(csv.DictReader(after.open()))
+    old, new = (list(csv.DictReader(open_run(p))) for p in (before, after))
     if len(old) != len(new):
         return {f"(rows: {len(old)} against {len(new)})": 1}
     counts: dict[str, int] = {}
@@ -72,7 +76,7 @@ def verdict_changes(before: Path, after: Path) -> tuple[list[str], int]:
     moved)."""
     if not after.exists():
         return ["  (no such file)"], 1
-    old, new = ({tuple(r.get(c, "") for c in RUN): r for r in csv.DictReader(p.open())} for p in (before, after))
+    old, new = ({tuple(r.get(c, "") for c in RUN): r for r in csv.DictReader(open_run(p))} for p in (before, after))
     lines = [f"  {m}: {tally([r for k, r in old.items() if k[-1] == m])} -> "
              f"{tally([r for k, r in new.items() if k[-1] == m])}" for m in sorted({k[-1] for k in old})]
     moved = [key for key in sorted(old.keys() & new.keys()) if verdict(old[key]) != verdict(new[key])]
@@ -93,15 +97,16 @@ def main() -> int:
     compared.add_argument("--verdicts", action="store_true", help="compare verdicts, not figures")
     args = parser.parse_args()
     same = True
-    for path in sorted(args.before.rglob("*.csv")):
+    for path in run_files(args.before):
+        counterpart = same_run(path, args.after / path.parent.relative_to(args.before))
         if args.verdicts:
-            lines, moved = verdict_changes(path, args.after / path.relative_to(args.before))
+            lines, moved = verdict_changes(path, counterpart)
             same &= not moved
             print(f"{path.relative_to(args.before)}:", *lines, sep="\n")
             continue
-        rows = sum(1 for _ in path.open()) - 1
+        rows = sum(1 for _ in open_run(path)) - 1
         largest = [0.0]
-        diff = differences(path, args.after / path.relative_to(args.before), args.tolerance, largest)
+        diff = differences(path, counterpart, args.tolerance, largest)
         same &= not diff
         within = f", numbers within {largest[0]:.1e} of each other" if largest[0] else ""
         print(f"{path.relative_to(args.before)}: {rows} rows, "

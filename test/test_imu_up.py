@@ -34,3 +34,21 @@ def test_the_mounting_turns_the_up_into_the_scan_frame_and_no_reading_gives_none
     R_sensor_imu = Rotation.from_euler("x", 90, degrees=True).as_matrix()   # IMU mounted on its side
     up, _ = imu.up_at(5.2, 1.0, R_sensor_imu)
     assert np.allclose(up, [0.0, -1.0, 0.0])
+
+
+def test_a_turning_sensor_turns_its_readings_into_the_frame_at_the_scan_by_its_gyro():
+    """Pitching at 20 deg/s for the second before the scan: the plain mean of its accelerations is
+    gravity smeared over where it pointed (about 10 deg off); turned by the gyro into the frame of
+    the last reading, the mean is the up at the scan."""
+    rate = np.radians(20.0)
+    stamps = np.linspace(9.0, 10.0, 201)
+    body = Rotation.from_euler("y", rate * (stamps - 9.0)[:, None])     # the sensor in a level frame
+    readings = body.inv().apply([0.0, 0.0, 9.81])
+    truth = body[-1].inv().apply([0.0, 0.0, 1.0])
+    smeared, with_gyro = ImuUp(), ImuUp()
+    for t, a in zip(stamps, readings, strict=True):
+        smeared.add(t, None, a)
+        with_gyro.add(t, None, a, np.array([0.0, rate, 0.0]))
+    off = [np.degrees(np.arccos(np.clip(imu.up_at(10.0, 1.0, np.eye(3))[0] @ truth, -1, 1)))
+           for imu in (smeared, with_gyro)]
+    assert off[0] > 8.0 and off[1] < 0.1, off

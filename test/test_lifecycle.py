@@ -68,11 +68,14 @@ def map_files(tmp_path_factory):
     files["random"] = folder / "random.bin"
     files["random"].write_bytes(np.random.default_rng(0).bytes(100_000))
     files["missing"] = folder / "missing.pcd"
+    files["empty"] = folder / "empty.npy"
+    np.save(files["empty"], np.zeros((0, 3), np.float32))
     return files
 
 
 @pytest.mark.parametrize("bad, says", [("missing", "no such file"), ("trajectory", "TUM trajectory"),
-                                       ("random", "not a point cloud")])
+                                       ("random", "not a point cloud"),
+                                       ("empty", "empty.npy: no points (an empty array)")])
 def test_a_map_that_is_not_one_fails_configure_with_the_reason(install, ros, map_files, bad, says):
     """Driven by a lifecycle manager: configure fails and the node stays unconfigured. Started
     alone (autostart): it exits non-zero and says why."""

@@ -52,11 +52,12 @@ def header_at(stamp_ns: int, frame_id: str) -> Header:
 
 
 def imu_reading(msg: Imu) -> tuple:
-    """(stamp, orientation xyzw or None, linear acceleration): REP 145, an
-    orientation_covariance[0] of -1 says no orientation is reported."""
-    q, a = msg.orientation, msg.linear_acceleration
+    """(stamp, orientation xyzw or None, linear acceleration, angular velocity or None): REP 145, a
+    covariance[0] of -1 says the field is not reported."""
+    q, a, w = msg.orientation, msg.linear_acceleration, msg.angular_velocity
     orientation = None if msg.orientation_covariance[0] == -1.0 else np.array([q.x, q.y, q.z, q.w])
-    return stamp_seconds(msg.header), orientation, np.array([a.x, a.y, a.z])
+    gyro = None if msg.angular_velocity_covariance[0] == -1.0 else np.array([w.x, w.y, w.z])
+    return stamp_seconds(msg.header), orientation, np.array([a.x, a.y, a.z]), gyro
 
 
 def pose_key(msg: PoseWithCovarianceStamped) -> tuple:

@@ -76,10 +76,11 @@ class SourceContext:
         self._waiting_since = None
         return waited
 
-    def add_imu(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray) -> None:
+    def add_imu(self, stamp: float, orientation_xyzw: np.ndarray | None, acceleration: np.ndarray,
+                angular_velocity: np.ndarray | None = None) -> None:
         with self.shared.lock:
             if self.imu is not None:
-                self.imu.add(stamp, orientation_xyzw, acceleration)
+                self.imu.add(stamp, orientation_xyzw, acceleration, angular_velocity)
 
     def set_hint(self, hint: Hint) -> None:
         with self.shared.lock:

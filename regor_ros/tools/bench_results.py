@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime
+import gzip
 import os
 import platform
 import sys
@@ -86,6 +87,27 @@ def write_results(out: Path, stem: str, report: str, rows: list[dict], fields: l
         writer.writeheader()
         writer.writerows(rows)
     plot(rows, out / f"{stem}.png")
+
+
+def open_run(path: Path):
+    """A run's CSV opened for reading as text, as regor-bench wrote it (.csv) or as results/ keeps
+    it (.csv.gz)."""
+    path = Path(path)
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt", newline="", encoding="utf-8")
+    return open(path, newline="", encoding="utf-8")
+
+
+def run_files(folder: Path) -> list[Path]:
+    """The run CSVs below ``folder``, compressed or not, in name order."""
+    return sorted([*folder.rglob("*.csv"), *folder.rglob("*.csv.gz")])
+
+
+def same_run(path: Path, folder: Path) -> Path:
+    """The run in ``folder`` with ``path``'s name (the other of .csv and .csv.gz when only it is there)."""
+    name = path.name[:-3] if path.suffix == ".gz" else path.name
+    plain = folder / name
+    return plain if plain.exists() or not (folder / f"{name}.gz").exists() else folder / f"{name}.gz"
 
 
 def command(argv) -> str:

@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import Figures, RegorConfig, passes, stack
-from .bench_results import place, same_place
+from .bench_results import open_run, place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
 BOTH_SIDES_GRID = np.append(np.round(np.arange(0.005, 0.051, 0.005), 3), 1.0)   # 1: off
@@ -130,8 +130,9 @@ def load_samples(paths: list[Path], method: str) -> list[Sample]:
     samples = []
     for path in paths:
         try:
-            rows = list(csv.DictReader(open(path, newline="", encoding="utf-8")))
-        except (OSError, UnicodeDecodeError, csv.Error) as exc:
+            with open_run(path) as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, EOFError, UnicodeDecodeError, csv.Error) as exc:
             raise ValueError(f"{path}: cannot be read as a CSV ({exc})") from None
         missing = {"method", "error", "pair", "kind", "success"} - set(rows[0] if rows else ())
         if missing:
@@ -451,7 +452,8 @@ def main(argv=None) -> int:
                                      epilog="example:\n  regor-calibrate-gate bench-out/benchmark.csv "
                                             "bench-out/mismatched.csv --out bench-out/gate_calibration.md",
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("csv", type=Path, nargs="+", help="benchmark.csv / mismatched.csv files of regor-bench")
+    parser.add_argument("csv", type=Path, nargs="+", help="benchmark.csv / mismatched.csv files of regor-bench "
+                                                          "(or .csv.gz, as results/ keeps them)")
     parser.add_argument("--method", default="regor", help="the Regor variant whose figures are used "
                                                           "(default: %(default)s)")
     parser.add_argument("--out", type=Path, help="also write the report here (markdown; default: print only)")

@@ -88,7 +88,7 @@ class Recording:
     odometry_gap: tuple[float, float] | None = None   # no odometry stamped in [from, to) [s after the first scan]
     odometry_stops: float | None = None               # no odometry stamped after this [s after the first scan]
     imu_rate: float = 0.0            # Hz; 0: no IMU
-    imu_tilt_deg: float = 0.0        # the IMU's up off the truth's by this, in a random direction each scan
+    imu_tilt_deg: float = 0.0        # the IMU's up off the truth's by this, its direction drawn at each scan
     tracked_shift: tuple[float, ...] | None = None    # a localization stack's pose on /amcl_pose at each scan:
     # the truth moved this far along x [m]; None: no such topic
     cloud_fields: str = "xyz"        # the scans' PointCloud2 fields (three float32)
@@ -153,25 +153,28 @@ def _messages(store, sequence: RecordedSequence, recording: Recording) -> list[t
 
 
 def _imu(store, sequence: RecordedSequence, recording: Recording):
-    """An IMU in the scan frame that reports no orientation: its acceleration is gravity's reaction
-    along the truth's up, tilted by imu_tilt_deg in a direction drawn for each scan's interval."""
+    """An IMU in the scan frame that reports no orientation, as most LiDARs' built-in ones: its
+    acceleration is gravity's reaction along the truth's up (the truth's orientation interpolated
+    between the scans), tilted by imu_tilt_deg about an axis drawn for each scan and turned smoothly
+    from one scan's to the next (a drifting bias); its angular velocity is the truth's turn rate."""
     rng = np.random.default_rng(recording.seed)
     period = 1.0 / recording.imu_rate
     stamps = np.arange(sequence.stamps[0] - 1.0, sequence.stamps[-1] + period / 2, period)
-    scan_of = np.clip(np.searchsorted(sequence.stamps, stamps), 0, len(sequence) - 1)
-    tilts = []
-    for _ in range(len(sequence)):
-        axis = rng.normal(size=3)
-        tilts.append(Rotation.from_rotvec(np.radians(recording.imu_tilt_deg) * axis / np.linalg.norm(axis)))
+    inside = np.clip(stamps, sequence.stamps[0], sequence.stamps[-1])
+    body = Slerp(sequence.stamps, Rotation.from_matrix(sequence.truth[:, :3, :3]))(inside)
+    axes = rng.normal(size=(len(sequence), 3))
+    tilts = Rotation.from_rotvec(np.radians(recording.imu_tilt_deg) * axes / np.linalg.norm(axes, axis=1)[:, None])
+    tilt = Slerp(sequence.stamps, tilts)(inside) if len(sequence) > 1 else Rotation.concatenate([tilts] * len(stamps))
+    up = tilt.apply(body.inv().apply(MAP_UP))
+    turn = (body[:-1].inv() * body[1:]).as_rotvec() / period            # body frame, from one reading to the next
+    gyro = np.vstack([turn, turn[-1:]])
     Imu, Vector3, Quaternion = (store.types[f"{n}"] for n in ("sensor_msgs/msg/Imu", "geometry_msgs/msg/Vector3",
                                                                "geometry_msgs/msg/Quaternion"))
     unknown = np.zeros(9)
     unknown[0] = -1.0   # REP 145: no orientation reported
-    for stamp, k in zip(stamps, scan_of, strict=True):
-        up = tilts[k].apply(sequence.truth[k][:3, :3].T @ MAP_UP)
-        a = GRAVITY * up
+    for stamp, a, w in zip(stamps, GRAVITY * up, gyro, strict=True):
         yield stamp, Imu(header=_header(store, stamp, "lidar"), orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-                         orientation_covariance=unknown, angular_velocity=Vector3(x=0.0, y=0.0, z=0.0),
+                         orientation_covariance=unknown, angular_velocity=Vector3(x=w[0], y=w[1], z=w[2]),
                          angular_velocity_covariance=np.zeros(9),
                          linear_acceleration=Vector3(x=a[0], y=a[1], z=a[2]),
                          linear_acceleration_covariance=np.zeros(9))
