@@ -9,9 +9,9 @@ impossible and never competes with the right one. Where it pays:
   length threshold plus what the tilt allows over their distance (the search becomes 4-DoF in
   spirit, as Quatro's and hdl_global_localization's are);
 - estimation: every rotation (hypotheses, refinements) is brought inside the tilt cone;
-- the gate (core/gate/, with the reason): a pose outside the cone, or whose sensor
-  height leaves the band, is rejected, and a symmetric rival that turns the scan over is not a
-  rival.
+- the gate (core/gate/, with the reason): a pose outside the cone, or held on its edge (the up
+  given is off by more than the cone allows), or whose sensor height leaves the band, is
+  rejected, and a symmetric rival that turns the scan over is not a rival.
 
 The height band is relative to where the target was seen from (its sensor, or the map's
 trajectory, which is the same robot's sensor height above its own floor): the source's sensor
@@ -29,6 +29,9 @@ from .cloud import PreparedCloud
 from .config import GravityConfig, parse_up
 
 EDGE_ROUNDING_DEG = 1e-6  # a rotation clamped onto the tilt cone's edge lands there up to rounding
+# a pose held on the edge: clamped, then refined, it stays within some 1e-6 deg of it; a pose the data
+# puts inside lands this near the edge about once in max_tilt / EDGE_HELD_DEG poses
+EDGE_HELD_DEG = 1e-3
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,13 @@ class GravityPrior:
         """Whether each (..., 3, 3) rotation's tilt is within max_tilt; a rotation clamped onto
         the cone's edge is inside, up to rounding."""
         return self.tilt_deg(rotations) <= self.max_tilt_deg + EDGE_ROUNDING_DEG
+
+    def held_at_edge(self, rotations: np.ndarray) -> np.ndarray:
+        """Whether each (..., 3, 3) rotation lies on the cone's edge, where clamp put it: the data
+        pulled the pose further than max_tilt from the up given, so that up is off by more than
+        max_tilt allows (an IMU read while turning or accelerating, a map whose z is not up) and the
+        pose is where the prior held it, not where the scan fits (EDGE_HELD_DEG)."""
+        return np.abs(self.tilt_deg(rotations) - self.max_tilt_deg) <= EDGE_HELD_DEG
 
     def height_band(self, transforms: np.ndarray, source: PreparedCloud, target: PreparedCloud):
         """For (S, 4, 4) poses: the height of the source's sensor above the target viewpoint

@@ -85,9 +85,10 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
 
 def gravity_figures(T: np.ndarray, prior: GravityPrior, source: PreparedCloud, target: PreparedCloud) -> dict:
     """The pose's tilt and its sensor's height against the prior (Figures' gravity fields), with
-    the prior's own predicates."""
-    figures = {"tilt_deg": float(prior.tilt_deg(T[:3, :3])), "tilt_allowed_deg": prior.max_tilt_deg,
-               "tilt_inside": bool(prior.tilt_inside(T[:3, :3]))}
+    the prior's own predicates: a pose held on the tilt cone's edge is not inside (held_at_edge)."""
+    R = T[:3, :3]
+    figures = {"tilt_deg": float(prior.tilt_deg(R)), "tilt_allowed_deg": prior.max_tilt_deg,
+               "tilt_inside": bool(prior.tilt_inside(R) and not prior.held_at_edge(R))}
     band = prior.height_band(T[None], source, target)
     if band is not None:
         height, allowed, distance = (float(v[0]) for v in band)
