@@ -2,6 +2,7 @@
 measured tilt between the two scans 0.35 deg against the SLAM truth)."""
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from conftest import DATA, require_shared_data
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
@@ -102,6 +103,23 @@ def test_a_wrong_up_direction_cannot_give_a_published_pose(ground_pair):
     result = register(src, tgt, config)
     assert not result.accepted
     assert GravityPrior.of(config.gravity).tilt_deg(result.transform[:3, :3]) <= 5.0 + 1e-6
+
+
+def test_an_up_off_by_more_than_the_cone_holds_the_pose_on_its_edge_and_it_is_withheld(ground_pair):
+    """The scan's up given 14 deg off the truth's (an IMU read while turning), with the default
+    10 deg bound: the truth lies outside the cone, the pose found is held on its edge, where the
+    prior put it, and the gate says so rather than publish a pose degrees off."""
+    src, tgt, T = ground_pair
+    true_up = T[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    off = np.cross(true_up, [1.0, 0.0, 0.0])
+    wrong_up = Rotation.from_rotvec(np.radians(14.0) * off / np.linalg.norm(off)).apply(true_up)
+    config = level(RegorConfig.preset("outdoor"), wrong_up, height_tolerance=0.0)
+    result = register(src, tgt, config, source_viewpoint=[0, 0, 0], target_viewpoint=[0, 0, 0])
+    prior = GravityPrior.of(config.gravity)
+    assert prior.held_at_edge(result.transform[:3, :3])
+    assert not result.accepted and result.verdict.failed == "gravity_tilt"
+    assert "held on the edge the prior allows: the up given is off by more than that" in result.reason
+    assert not prior.held_at_edge(T[:3, :3])   # 14 deg off the up given: outside the cone, not on its edge
 
 
 def test_the_benchmark_turns_the_source_up_with_its_random_motion(ground_pair):
