@@ -2,8 +2,8 @@
 measured tilt between the two scans 0.35 deg against the SLAM truth)."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from conftest import DATA, require_shared_data
+from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
