@@ -184,7 +184,8 @@ CHECKS = (
                               f"(gravity.max_tilt={figures.tilt_allowed_deg:g}): " +
                               ("held on the edge the prior allows: the up given is off by more than that "
                                "(an IMU read while turning or accelerating, or a map whose z is not up?)"
-                               if abs(figures.tilt_deg - figures.tilt_allowed_deg) <= EDGE_HELD_DEG else "tipped over"))),
+                               if abs(figures.tilt_deg - figures.tilt_allowed_deg) <= EDGE_HELD_DEG
+                               else "tipped over"))),
     Check("gravity_height", lambda figures, _: ~np.asarray(figures.height_inside, dtype=bool),
           lambda figures, _: (f"the pose puts the source's sensor {figures.height_offset:+.2f} m from the height "
                               f"the target was seen from, {figures.height_distance:.1f} m away (allowed "
