@@ -5,6 +5,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -76,3 +77,13 @@ def test_a_node_left_running_is_killed_and_named():
     finished.proc.wait(timeout=10)
     assert kill_survivors([running, finished]) == [running]
     assert running.proc.poll() is not None
+
+
+def test_the_type_checkers_stub_names_every_public_name_from_its_home():
+    """To a type checker the lazy core's names are what they are, not Any: __init__.pyi imports each
+    from its home, as regor_ros.core.public_stub() writes it."""
+    import regor_ros.core as core
+    stub = Path(core.__file__).with_name("__init__.pyi")
+    assert stub.read_text() == core.public_stub(), \
+        "regenerate: python -c \"import regor_ros.core as c; open(c.__file__ + 'i', 'w').write(c.public_stub())\""
+    assert all(f"    {name} as {name}," in stub.read_text() for name in core.__all__)

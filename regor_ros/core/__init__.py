@@ -3,7 +3,8 @@
 The names below are the core's public face: the node, the files layer and the tools import from
 here, never from the modules behind it. Each name is loaded when first asked for (PEP 562), so a
 tool that only needs the configuration answers ``--help`` without loading open3d, scipy's spatial
-modules and the compiled kernels.
+modules and the compiled kernels. To a type checker they are what they are: ``__init__.pyi``
+imports each from its home (``public_stub()`` writes it; a test keeps it in step with _HOMES).
 """
 import os
 from importlib import import_module
@@ -48,3 +49,11 @@ def __getattr__(name: str):
 
 def __dir__():
     return __all__
+
+
+def public_stub() -> str:
+    """The text of __init__.pyi: every public name imported from its home, for type checkers."""
+    lines = ['"""The core\'s public face as a type checker sees it (generated: regor_ros.core.public_stub())."""']
+    for module, names in _HOMES.items():
+        lines += [f"from .{module} import ("] + [f"    {name} as {name}," for name in names] + [")"]
+    return "\n".join(lines) + "\n"
