@@ -16,6 +16,7 @@ from conftest import REPO
 PACKAGE = REPO / "regor_ros"
 LAYERS = ["core", "io", "ros", "tools"]   # each may import the ones before it
 CORE_INTERNALS_ALLOWED = {"regor_ros.io.map_cache"}   # it serialises the prepared map's internals
+MAX_MODULE_LINES = 800
 
 
 def _module(path: Path) -> str:
@@ -48,8 +49,9 @@ def _imports(path: Path, at_run_time: bool = False):
                 name = node.module or ""
             if name.startswith("regor_ros"):
                 yield name
-                for alias in node.names:   # "from . import x" names a module
-                    if (PACKAGE.parent / (name + "." + alias.name).replace(".", "/")).with_suffix(".py").exists():
+                for alias in node.names:   # "from . import x" names a module (or a package)
+                    named = PACKAGE.parent / (name + "." + alias.name).replace(".", "/")
+                    if named.with_suffix(".py").exists() or (named / "__init__.py").exists():
                         yield f"{name}.{alias.name}"
         elif isinstance(node, ast.Import):
             yield from (a.name for a in node.names if a.name.startswith("regor_ros"))
@@ -151,3 +153,11 @@ def test_no_class_of_the_node_does_more_than_fifteen_things():
                for node in ast.walk(ast.parse(path.read_text())) if isinstance(node, ast.ClassDef)
                for methods in [sum(isinstance(n, ast.FunctionDef) for n in node.body)] if methods > 15]
     assert not crowded, f"split these into parts with one job each: {crowded}"
+
+
+def test_no_module_is_longer_than_a_reader_holds():
+    """One concept a module: a module past MAX_MODULE_LINES has grown two (kernels are split by
+    what they compute, the gate by what it measures)."""
+    long = [f"{path.relative_to(REPO)} ({n})" for path in sorted(PACKAGE.rglob("*.py"))
+            for n in [len(path.read_text().splitlines())] if n > MAX_MODULE_LINES]
+    assert not long, f"split these by concept: {long}"
