@@ -4,4 +4,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/environment.sh
 ruff check regor_ros test launch lab
-mypy   # the core's types (setup.cfg [mypy])
+mypy   # the package's types (setup.cfg [mypy])

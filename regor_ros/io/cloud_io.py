@@ -22,7 +22,8 @@ def _open3d(path: Path) -> np.ndarray:
             raise CloudFileError(f"{path}: the file is empty")
     # open3d's own warnings about a bad file would print before, and beside, the reason given here
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        cloud = o3d.io.read_point_cloud(str(path), format="auto", print_progress=False)
+        cloud = o3d.io.read_point_cloud(str(path), format="auto",  # type: ignore[arg-type]  # (str: any open3d)
+                                        print_progress=False)
     points = np.asarray(cloud.points, dtype=np.float64)
     if len(points) == 0:
         raise CloudFileError(f"{path}: no points could be read (not a valid {path.suffix} point cloud?)")

@@ -11,6 +11,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -120,7 +121,7 @@ def _scale_hint(prepared: PreparedCloud, sample: np.ndarray) -> str:
 @dataclass
 class MapFromFile:
     prepared: PreparedCloud
-    info: dict[str, object] = field(default_factory=dict)  # for status: the files and what the cache did
+    info: dict[str, Any] = field(default_factory=dict)  # for status: the files and what the cache did
 
 
 def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bool = True,
@@ -135,7 +136,7 @@ def load_map_file(map_file, config: RegorConfig, trajectory_file=None, cache: bo
     for path in (map_file, trajectory_file):
         if path is not None and not path.is_file():
             raise CloudFileError(f"{path}: no such file")
-    info = {"map_file": str(map_file), "map_trajectory_file": str(trajectory_file or "")}
+    info: dict[str, Any] = {"map_file": str(map_file), "map_trajectory_file": str(trajectory_file or "")}
     path = None
     if cache:
         key = map_key(file_digest(map_file), file_digest(trajectory_file), config.features)

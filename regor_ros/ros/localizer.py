@@ -112,8 +112,9 @@ class Localizer:
             stats = self.report.stats
             stats[f"{which}_clouds"] += 1
             stats["dropped_stale"] += self._inputs.store(which, frame_id, stamp_ns, points, self.shared.settings.mode)
-            if which == "source":
-                self.context.add_scan(self._inputs.source.stamp, points)
+            source = self._inputs.source
+            if which == "source" and source is not None:   # (just stored)
+                self.context.add_scan(source.stamp, points)
             self.lock.notify_all()
 
     def replay(self, frame_id: str, stamp_ns: int, points: np.ndarray, register_it: bool,
@@ -124,9 +125,11 @@ class Localizer:
         the worker would (fused along odometry, judged, reported through on_outcome): a recording
         replayed as fast as the CPU allows."""
         self.store("source", frame_id, stamp_ns, points)
+        source = self._inputs.source
+        assert source is not None, "just stored"
         if check_it:
             with self.lock:
-                config, settings, source = self.shared.config, self.shared.settings, self._inputs.source
+                config, settings = self.shared.config, self.shared.settings
             self._check(source, config, settings)
             with self.lock:
                 register_it |= self._relocalizing
@@ -134,7 +137,7 @@ class Localizer:
             return None
         with self.lock:
             relocalizing, self._relocalizing, self._inputs.relocalize_after = self._relocalizing, False, None
-            job = Register(self._inputs.source, None)
+            job = Register(source, None)
             self._inputs.taken(job)
             config, settings, hint = self.shared.config, self.shared.settings, self.context.hint
         answer = self._register(job, config, settings, hint)
@@ -214,7 +217,7 @@ class Localizer:
                 self.maps.prepare(job, config)
             elif isinstance(job, CheckPose):
                 self._check(job.source, config, settings)
-            else:
+            elif isinstance(job, Register):
                 answer = self._register(job, config, settings, hint, waited)
                 with self.lock:
                     self._answer = answer
@@ -231,7 +234,9 @@ class Localizer:
             pose, why = self.watchdog.pose_for(src.stamp, self.maps.frame, settings.max_pose_age)
             target = self.maps.prepared
         result = None
-        if pose is not None:
+        if pose is not None and target is None:   # the map was dropped since the check was asked for
+            pose, why = None, "no map in use"
+        if pose is not None and target is not None:
             T_map_sensor = pose.transform @ settings.base_extrinsic() if settings.base_frame else pose.transform
             source, viewpoints, _ = self.context.source_input(src, settings)
             try:
@@ -241,7 +246,7 @@ class Localizer:
         with self.lock:
             if self.shared.stopping:
                 return
-            check = (self.watchdog.unchecked(why, src.stamp) if result is None else
+            check = (self.watchdog.unchecked(why, src.stamp) if result is None or pose is None else
                      self.watchdog.judged(result, src.stamp, pose.stamp, settings.lost_after))
             if check.state == LOST and self._inputs.relocalize_after is None:
                 self._relocalizing, self._inputs.relocalize_after = True, src.serial - 1
@@ -256,11 +261,15 @@ class Localizer:
         """Register the source against the pair's target or (map mode) the prepared map, and
         report it; ``waited``: seconds the worker waited for the source's odometry."""
         src = job.source
+        target: PreparedCloud | np.ndarray | None
         if settings.mode == "map":
             with self.lock:
                 target, target_frame = self.maps.prepared, self.maps.frame
         else:
+            assert job.target is not None, "a pair's registration has its target"
             target, target_frame = job.target.points, job.target.frame_id
+        if target is None:   # the map was dropped since the job was taken (a lifecycle cleanup)
+            return Answer(src.serial, False, "not registered: no map in use")
         try:
             config, source_up = self.context.gravity(config, settings, src)
             region = self.context.region(hint, target_frame)

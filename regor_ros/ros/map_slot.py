@@ -68,6 +68,7 @@ class MapSlot:
                 self.use_file(key.file, key.trajectory)
             else:
                 target = job.target
+                assert target is not None, "a map that is no file comes as a target message"
                 self._put_in_use(lambda: (prepare_cloud(target.points, config, "target",
                                                         viewpoint=key.viewpoint), {}),
                                  key, target.frame_id)

@@ -40,7 +40,7 @@ class Outputs:
     def __init__(self, node: LifecycleNode, settings):
         self.node, self.settings = node, settings
         self._made: list[LifecyclePublisher] = []
-        self._own_poses = deque(maxlen=OWN_POSES_KEPT)  # (stamp, position) of poses published
+        self._own_poses: deque[tuple] = deque(maxlen=OWN_POSES_KEPT)  # (stamp, position) of poses published
 
     def make(self) -> None:
         def publisher(msg_type, topic: str, qos) -> LifecyclePublisher:
@@ -99,5 +99,6 @@ class Outputs:
 
     def map(self, prepared: PreparedCloud, frame: str) -> None:
         """The map as the node uses it (downsampled, ground kept), latched for RViz."""
+        assert prepared.map_view is not None, "a map is prepared with its view"
         self.map_cloud.publish(xyz_to_cloud(prepared.map_view.surface,
                                             Header(stamp=self.node.get_clock().now().to_msg(), frame_id=frame)))

@@ -34,7 +34,7 @@ class PoolExecutor(Executor):
     def __init__(self, threads: int, *, context=None):
         super().__init__(context=context)
         self._pool = ThreadPoolExecutor(threads)
-        self._submitted = {}   # task -> the pool's future of its latest run
+        self._submitted: dict = {}   # task -> the pool's future of its latest run
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         try:

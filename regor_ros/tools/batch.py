@@ -89,7 +89,7 @@ class Dispatcher:
 
     def next_for(self, worker: str) -> PairRow:
         recent = self._recent[worker]
-        shared = defaultdict(int)
+        shared: defaultdict = defaultdict(int)
         for cloud in recent:
             for row_id in self._by_cloud[cloud]:
                 shared[row_id] += 1

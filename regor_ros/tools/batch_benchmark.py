@@ -56,8 +56,8 @@ def _scored(name: str, seconds: float, accepted: list[bool], correct: list[bool]
 
 def run_batch_scaling(maps: Path, workers: list[int], config: RegorConfig, overrides: dict, out: Path,
                       header: str) -> str:
-    with tempfile.TemporaryDirectory() as scratch:
-        scratch = Path(scratch)
+    with tempfile.TemporaryDirectory() as scratch_name:
+        scratch = Path(scratch_name)
         truths = candidate_list(maps, scratch)
         rows = read_pairs(scratch / "pairs.jsonl", default_preset="outdoor")
         print(f"{len(rows)} candidate pairs; serial register() ...", flush=True)

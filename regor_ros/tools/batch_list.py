@@ -129,7 +129,8 @@ def read_pairs(path, scans=None, default_preset: str = "indoor") -> list[PairRow
     if scans and not folder.is_dir():
         raise ListError(f"{folder}: no such scans folder")
     lines = _csv_rows(path) if path.suffix.lower() == ".csv" else _json_lines(path)
-    rows, seen = [], {}
+    rows: list = []
+    seen: dict = {}
     try:
         for line, fields in lines:
             row = _row(fields, line, folder, default_preset)

@@ -15,6 +15,7 @@ import socket
 import threading
 import time
 from collections import OrderedDict
+from typing import Any
 
 import numba
 import numpy as np
@@ -97,7 +98,7 @@ def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int
     ``threads``: the compiled kernels' threads for this task (None: as many as the process has)."""
     start = time.perf_counter()
     if threads:
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
     out = {**row_identity(row), "worker": f"{socket.gethostname()}:{os.getpid()}"}
     try:
         if row.error:
@@ -108,7 +109,7 @@ def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int
         target, target_reused = clouds.get(row.target_path, row.target_viewpoint, config, "target")
         if config.acceptance.retries:
             source, source_reused = read_cloud(row.source_path), False
-            kwargs = {"source_viewpoint": row.source_viewpoint}
+            kwargs: dict[str, Any] = {"source_viewpoint": row.source_viewpoint}
         else:
             (source, source_reused), kwargs = clouds.get(row.source_path, row.source_viewpoint, config, "source"), {}
         if row.pose is not None:   # a candidate that comes with its pose: verified, not searched

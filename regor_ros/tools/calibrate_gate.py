@@ -76,7 +76,8 @@ class Sample:
     def gross(self) -> bool:
         """A wrong pose of no use (metrics.is_gross), not a near miss."""
         from ..core import is_gross  # here: --help answers without scipy.spatial (test_startup)
-        return not self.correct and is_gross(*self.error, self.kind)
+        turn, shift = self.error
+        return not self.correct and is_gross(turn, shift, self.kind)
 
     @property
     def near_miss(self) -> bool:
@@ -104,7 +105,8 @@ class Sample:
     @property
     def passes_unfitted(self) -> bool:
         """Passes every check that is not fitted (the fitted ones at their most lenient)."""
-        return bool(passes(self.figures, replace(RegorConfig.preset(self.kind).acceptance, **LENIENT)))
+        lenient = replace(RegorConfig.preset(self.kind).acceptance, **LENIENT)  # type: ignore[arg-type]
+        return bool(passes(self.figures, lenient))
 
     def involves(self, family: str) -> bool:
         """The run registers a cloud of that place (either cloud, for a cross-place run)."""
@@ -327,7 +329,7 @@ def _blind_row(name: str, thresholds: Thresholds, held: list[Sample]) -> str:
 
 def folds(samples: list[Sample], fitter=stable_fit) -> dict[str, list]:
     """Leave one place out, per kind: [(place, its runs, the thresholds fitted without them)]."""
-    out = {}
+    out: dict[str, list] = {}
     for kind in sorted({s.kind for s in samples}):
         group = [s for s in samples if s.kind == kind]
         out[kind] = []

@@ -66,7 +66,8 @@ class PairClient(Node):
             rclpy.spin_once(self, timeout_sec=0.05)
         return condition()
 
-    def wait_for_node(self, timeout: float) -> bool:
+    # not rclpy's (Jazzy on) wait_for_node(name): register_node's subscription, within timeout
+    def wait_for_node(self, timeout: float) -> bool:  # type: ignore[override]
         found = self.spin_until(lambda: self.source_pub.get_subscription_count() > 0
                                 and self.target_pub.get_subscription_count() > 0, timeout)
         self.spin_until(lambda: False, DISCOVERY_SETTLE_S)  # let the node match us too

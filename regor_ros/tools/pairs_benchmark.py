@@ -154,7 +154,8 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> list[dict]:
         if out.figures is not None:
             row.update(gate_columns(out.figures))
         if out.final is not None and T_gt is not None:
-            row["inliers_final"] = int(correct_mask(*out.final, T_gt, threshold).sum())
+            final_source, final_target = out.final
+            row["inliers_final"] = int(correct_mask(final_source, final_target, T_gt, threshold).sum())
             row["final_count"] = len(out.final[0])
         rows.append(row)
     return rows
@@ -172,7 +173,8 @@ def cross_place_pairs(pairs: list[Pair], seed: int | None) -> list[Pair]:
 def _crossed(pairs: list[Pair], seed: int | None, source_role: str, target_role: str) -> list[Pair]:
     """Each distinct source cloud against one target cloud of every other place; the role labels
     name which cloud of each pair was used when it is not the usual one."""
-    sources, targets = {}, defaultdict(dict)
+    sources: dict = {}
+    targets: defaultdict = defaultdict(dict)
     for p in pairs:
         sources.setdefault(p.src.tobytes().__hash__(), p)
         targets[(p.kind, place(p.name))].setdefault(p.tgt.tobytes().__hash__(), p)
@@ -181,8 +183,8 @@ def _crossed(pairs: list[Pair], seed: int | None, source_role: str, target_role:
         for (kind, where), group in sorted(targets.items()):
             if kind != a.kind or same_place(where, place(a.name)):
                 continue
-            group = list(group.values())
-            b = group[((seed or 0) + a.index) % len(group)]
+            choices = list(group.values())
+            b = choices[((seed or 0) + a.index) % len(choices)]
             crossed.append(dataclasses.replace(
                 a, name=f"{a.name}{source_role} -> {b.name}{target_role}", tgt=b.tgt, T_gt=None,
                 tgt_viewpoint=b.tgt_viewpoint, tgt_up=b.tgt_up))

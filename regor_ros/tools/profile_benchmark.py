@@ -50,7 +50,7 @@ class Profiled:
 
     def function_table(self) -> str:
         stats = pstats.Stats(self.profile)
-        rows = sorted(stats.stats.items(), key=lambda item: -item[1][2])[:TOP_FUNCTIONS]
+        rows = sorted(stats.stats.items(), key=lambda item: -item[1][2])[:TOP_FUNCTIONS]  # type: ignore[attr-defined]
         n = max(len(self.timings), 1)
         lines = [f"### {self.name}: the {TOP_FUNCTIONS} functions with the most own time", "",
                  "| function | calls per registration | own s per registration | cumulative s per registration |",

@@ -11,6 +11,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -41,12 +42,12 @@ class Client(Node):
     def __init__(self, node: str):
         super().__init__("regor_relocalize")
         self.node = node.rstrip("/")
-        self.poses = []
+        self.poses: list[PoseStamped] = []
         self.create_subscription(PoseStamped, "pose", self.poses.append, 10)
         self.scans = self.create_publisher(PointCloud2, "source_cloud", 10)
 
     def call(self, srv_type, name: str, request, timeout: float, find_within: float, while_waiting=None):
-        client = self.create_client(srv_type, f"{self.node}/{name}")
+        client: Any = self.create_client(srv_type, f"{self.node}/{name}")
         if not self._found(client, find_within, timeout):
             raise TimeoutError(f"no service {self.node}/{name} within {find_within:g} s: is register_node running "
                                "(and configured), with this ROS_DOMAIN_ID?")

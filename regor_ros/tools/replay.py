@@ -184,7 +184,8 @@ def replay(bag: Path, config: RegorConfig, settings, topics: Topics, every: floa
             side = _side_messages(reader, side_connections, settings)
         except Exception as exc:  # a message the bag holds but cannot give back whole
             raise ReplayError(f"{bag}: reading stopped: {type(exc).__name__}: {exc}") from None
-        outcomes, checks = {}, []
+        outcomes: dict = {}
+        checks: list = []
         localizer = Localizer(config, settings, logging.getLogger("regor-replay"),
                               lambda outcome: outcomes.__setitem__(outcome.source.serial, outcome),
                               lambda prepared, frame: None, checks.append)
@@ -225,7 +226,7 @@ def replay(bag: Path, config: RegorConfig, settings, topics: Topics, every: floa
         reader.close()
     for item in side[handed:]:   # the poses logged after the last scan, for the reference
         if item[1] == "reference":
-            reference.append((item[0], item[2]))
+            reference.append((item[0], np.asarray(item[2])))
     counts["reference"] = len(reference)
     return registrations, reference, counts, localizer.maps.prepared, checks
 

@@ -114,7 +114,7 @@ def write_recording(path: Path, sequence: RecordedSequence, recording: Recording
                        for topic, msgtype in types.items() if topic in used}
         for logged, topic, message in sorted(messages, key=lambda m: m[0]):
             writer.write(connections[topic], int(round(logged * 1e9)),
-                         store.serialize_cdr(message, message.__msgtype__))
+                         store.serialize_cdr(message, message.__msgtype__))  # type: ignore[attr-defined]
     return path
 
 

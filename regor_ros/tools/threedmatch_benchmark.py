@@ -64,7 +64,8 @@ class Fragments:
     """Fragments loaded once each (a fragment is in many pairs)."""
 
     def __init__(self, folder: Path):
-        self.folder, self.loaded = folder, {}
+        self.folder = folder
+        self.loaded: dict = {}
 
     def __call__(self, scene: str, k: int) -> np.ndarray:
         key = (scene, k)
@@ -79,7 +80,7 @@ class Fragments:
 def as_pair(entry: dict, fragments: Fragments) -> Pair:
     return Pair(entry["index"], entry["name"], "indoor", fragments(entry["scene"], entry["j"]),
                 fragments(entry["scene"], entry["i"]), np.asarray(entry["T"], dtype=np.float64),
-                ORIGIN, ORIGIN)
+                np.asarray(ORIGIN), np.asarray(ORIGIN))
 
 
 def entry_rows(entry: dict, fragments: Fragments, methods: list[str], config: RegorConfig,
@@ -153,11 +154,11 @@ def markdown(summary: dict, rows: list[dict], methods: list[str], title: str) ->
                 cells.append(f"{100 * s['recall']:.1f} % of {s['pairs']}{verdict}")
             if any(c != "–" for c in cells):
                 lines.append(f"| {scene} | {bench} | " + " | ".join(cells) + " |")
-    wrong = [r for r in rows if r["accepted"] is True and not r["success"]]
-    if wrong:
+    published_wrong = [r for r in rows if r["accepted"] is True and not r["success"]]
+    if published_wrong:
         lines += ["", "Every wrong pose published:", "", "| pair | list | method | RE deg | TE m | feature inliers |",
                   "|" + "---|" * 6]
-        for r in wrong:
+        for r in published_wrong:
             lines.append(f"| {r['pair']} | {r['bench']} | {r['method']} | {r['rotation_error_deg']:.1f} | "
                          f"{r['translation_error_m']:.2f} | {r.get('feature_inliers', '–')} |")
     lines += ["", "Methods:", ""] + [f"- `{m}`: {DESCRIPTIONS[m]}" for m in methods]

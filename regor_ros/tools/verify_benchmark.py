@@ -101,7 +101,8 @@ def case_rows(base: dict, source, target, raw_source: np.ndarray, raw_target: np
     start = time.perf_counter()
     register(source, target, config, **viewpoints)
     registered = time.perf_counter() - start
-    poses = given_poses(truth, *axes, config.verification.max_correction)
+    up, dominant = axes
+    poses = given_poses(truth, up, dominant, config.verification.max_correction)
     kiss_inliers = ""
     try:
         kiss, _, _, kiss_inliers = kiss_matcher_solution(raw_source, raw_target, config.features.voxel_size)
@@ -219,13 +220,14 @@ def verify_report(rows: list[dict], header: str) -> str:
               "|---|---|---|---|---|---|---|"]
     for kind in sorted({r["kind"] for r in rows}):
         of_kind = [r for r in rows if r["kind"] == kind]
-        right = np.array([r["right"] for r in of_kind])
-        share = float(np.mean([r["verified"] for r in of_kind if r["right"]])) if right.any() else 0.0
+        right_mask = np.array([r["right"] for r in of_kind])
+        share = float(np.mean([r["verified"] for r in of_kind if r["right"]])) if right_mask.any() else 0.0
         ours = sum(r["verified"] for r in of_kind if not r["right"])
-        lines.append(f"| {kind} | verify() | {right.sum()} | {100 * share:.1f} % | - | {(~right).sum()} | **{ours}** |")
-        threshold, passed = threshold_matching(np.array([r["icp_fitness"] for r in of_kind]), right, share)
-        lines.append(f"| {kind} | ICP fitness | {right.sum()} | {100 * share:.1f} % | {threshold:.3f} | "
-                     f"{(~right).sum()} | **{passed}** |")
+        lines.append(f"| {kind} | verify() | {right_mask.sum()} | {100 * share:.1f} % | - | "
+                     f"{(~right_mask).sum()} | **{ours}** |")
+        threshold, passed = threshold_matching(np.array([r["icp_fitness"] for r in of_kind]), right_mask, share)
+        lines.append(f"| {kind} | ICP fitness | {right_mask.sum()} | {100 * share:.1f} % | {threshold:.3f} | "
+                     f"{(~right_mask).sum()} | **{passed}** |")
         kiss = [r for r in of_kind if r["pose"] == "kiss-matcher"]
         kiss_right = np.array([r["right"] for r in kiss], dtype=bool)
         if kiss_right.any():

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import PRESETS, ConfigError, RegistrationError, RegorConfig, parse_viewpoint
+from ..core import PRESETS, ConfigError, PreparedCloud, RegistrationError, RegorConfig, parse_viewpoint
 from ..io.cloud_io import FORMATS, read_cloud
 from .register_cli import DEFAULT_PRESET, PRESET_HELP, parse_overrides
 
@@ -78,6 +78,7 @@ def main(argv=None) -> int:
         pose = read_pose(args.pose)
         source = read_cloud(args.source)
         target_viewpoint = parse_viewpoint(args.target_viewpoint, "--target-viewpoint")
+        target: PreparedCloud | np.ndarray
         if args.map_trajectory:
             if args.target_viewpoint != "auto":
                 raise RegistrationError("--target-viewpoint: a map built along --map-trajectory has no single one")
