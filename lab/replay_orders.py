@@ -42,11 +42,10 @@ VARIANTS = {   # name: (how the robot logged it, regor-replay's extra arguments)
 SAME_POSE = ("LIO odometry after its scan", "odometry with its scan", "odometry before its scan")
 
 
-def run(data: Path, name: str, variant: str, work: Path) -> list[dict]:
+def run(folder: Path, sequence, name: str, variant: str, work: Path) -> list[dict]:
     recording, extra = VARIANTS[variant]
-    folder = data / name
     tag = f"{name.replace('/', '_')}_{list(VARIANTS).index(variant)}"
-    bag = write_recording(work / tag, load_recorded_sequence(folder), recording)
+    bag = write_recording(work / tag, sequence, recording)
     out = work / f"{tag}_out"
     code = replay([str(bag), "--map", str(folder / "map.npy"), "--map-trajectory", str(folder / "map_trajectory.txt"),
                    "--scan-topic", "/points", "--reference-topic", "/truth", "--preset", "outdoor",
@@ -79,8 +78,9 @@ def main() -> None:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as work:
         for name in SEQUENCES:
+            sequence = load_recorded_sequence(args.data / name)   # read once, written each way
             for variant in VARIANTS:
-                rows += run(args.data, name, variant, Path(work))
+                rows += run(args.data / name, sequence, name, variant, Path(work))
                 print(name, variant, tally([r for r in rows if r["sequence"] == name and r["variant"] == variant]),
                       flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -82,9 +82,15 @@ def read_cloud(path) -> np.ndarray:
     if not path.is_file():
         raise CloudFileError(f"{path}: no such file")
     points = reader(path)
-    with np.errstate(invalid="ignore"):
-        sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
+    sane = sane_rows(points)
     if sane.mean() < MIN_SANE_SHARE:
         raise CloudFileError(f"{path}: {int((~sane).sum())} of {len(points)} points read are NaN, infinite or "
                              f"beyond {MAX_ABS_COORDINATE:g} m: not a point cloud (random bytes, another format?)")
     return points
+
+
+def sane_rows(points: np.ndarray) -> np.ndarray:
+    """Mask of the points that are finite and within MAX_ABS_COORDINATE (the rest: holes of an
+    organised cloud, or garbage)."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..core import MAX_ABS_COORDINATE, PRESETS, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
-from .cloud_io import CloudFileError, read_cloud
+from ..core import PRESETS, PreparedCloud, RegorConfig, prepare_cloud, to_matrix
+from .cloud_io import CloudFileError, read_cloud, sane_rows
 from .map_cache import CacheError, file_digest, load_map, map_key, save_map
 
 CACHE_SUFFIX = ".regor-cache.npz"
@@ -39,11 +39,17 @@ def read_trajectory(path) -> tuple[np.ndarray, np.ndarray]:
         rows = np.loadtxt(path, ndmin=2, comments="#")
     except ValueError as exc:
         raise CloudFileError(f"{path}: not a TUM trajectory (t x y z qx qy qz qw per line): {exc}") from None
-    if rows.shape[0] == 0 or rows.shape[1] != 8 or not np.isfinite(rows).all():
-        raise CloudFileError(f"{path}: expected rows of 8 numbers (t x y z qx qy qz qw), got shape {rows.shape}")
+    return trajectory_of_rows(rows, path)
+
+
+def trajectory_of_rows(rows: np.ndarray, where) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps, poses) of rows ``t x y z qx qy qz qw``, or a CloudFileError naming ``where`` (the
+    file they came from) and the row that is not a pose."""
+    if rows.ndim != 2 or rows.shape[0] == 0 or rows.shape[1] != 8 or not np.isfinite(rows).all():
+        raise CloudFileError(f"{where}: expected rows of 8 numbers (t x y z qx qy qz qw), got shape {rows.shape}")
     norms = np.linalg.norm(rows[:, 4:8], axis=1)
     if (norms < 1e-6).any():
-        raise CloudFileError(f"{path}: line {int(np.argmax(norms < 1e-6)) + 1} has a zero quaternion")
+        raise CloudFileError(f"{where}: line {int(np.argmax(norms < 1e-6)) + 1} has a zero quaternion")
     rotations = Rotation.from_quat(rows[:, 4:8]).as_matrix()
     poses = np.array([to_matrix(R, t) for R, t in zip(rotations, rows[:, 1:4], strict=True)])
     return rows[:, 0], poses
@@ -69,11 +75,10 @@ def read_map(map_file: Path) -> np.ndarray:
     mostly garbage (random bytes, a wrong format) or a trajectory (TUM rows). Whether they form
     surfaces is asked of the prepared map (check_surfaces)."""
     points = read_cloud(map_file)   # refuses a file of mostly NaN, infinite or far points
-    sane = np.isfinite(points).all(axis=1) & (np.abs(points) < MAX_ABS_COORDINATE).all(axis=1)
     if map_file.suffix.lower() in (".txt", ".xyz") and _is_trajectory(map_file):
         raise CloudFileError(f"{map_file}: rows of t x y z qx qy qz qw: a TUM trajectory, not a map "
                              "(give it as map_trajectory_file)")
-    return points[sane]
+    return points[sane_rows(points)]
 
 
 def _is_trajectory(path: Path) -> bool:

@@ -215,7 +215,7 @@ def unknown_overrides(node) -> list[str]:
     declare: rclpy ignores it silently, so a misspelt name would leave its default in force."""
     given = getattr(node, "_parameter_overrides", {})   # rclpy keeps them here (Humble to Kilted)
     names = [n for n in given if not node.has_parameter(n) and not n.startswith("qos_overrides.")]
-    declared = [p for p in node.get_parameters_by_prefix("")] if names else []
+    declared = list(node.get_parameters_by_prefix("")) if names else []
     leaves = {name.rsplit(".", 1)[-1]: name for name in declared}
     warnings = []
     for name in sorted(names):

@@ -34,7 +34,6 @@ class SourceContext:
         self.imu = ImuUp() if shared.settings.imu_topic else None
         self.hint: Hint | None = None
         self._waiting_since: float | None = None   # the worker waits for odometry since (monotonic), or None
-        self._deadline = 0.0
 
     def _capacity(self) -> int:
         """Scans kept for accumulation: twice the scans fused, so ones without odometry can be skipped."""
@@ -48,7 +47,7 @@ class SourceContext:
         with self.shared.lock:
             self.report.stats["odometry_messages"] += 1
             self.history.add_odometry(stamp, T_odom_scan)
-            self.shared.lock.notify_all()   # a scan may be waiting for it (Localizer._awaits_odometry)
+            self.shared.lock.notify_all()   # a scan may be waiting for it (awaits_odometry)
 
     def awaits_odometry(self, stamp: float) -> float:
         """Seconds the worker still waits before taking the source stamped ``stamp`` (the caller
@@ -60,15 +59,15 @@ class SourceContext:
         settings = self.shared.settings
         if settings.accumulation().scans < 2 or not self.history.has_odometry or self.history.covers(stamp):
             return 0.0
-        now = time.monotonic()
         if self._waiting_since is None:
-            self._waiting_since = now
-        self._deadline = self._waiting_since + settings.odometry_wait
-        return max(0.0, self._deadline - now)
+            self._waiting_since = time.monotonic()
+        return self.still_waiting()
 
     def still_waiting(self) -> float:
         """Seconds left of a wait for odometry under way, 0 when none (the caller holds the lock)."""
-        return 0.0 if self._waiting_since is None else max(0.0, self._deadline - time.monotonic())
+        if self._waiting_since is None:
+            return 0.0
+        return max(0.0, self._waiting_since + self.shared.settings.odometry_wait - time.monotonic())
 
     def end_wait(self) -> float:
         """The worker takes a job: the seconds it waited for odometry, and the clock stopped."""

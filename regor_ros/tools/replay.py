@@ -184,13 +184,15 @@ def replay(bag: Path, config: RegorConfig, settings, topics: Topics, every: floa
             side = _side_messages(reader, side_connections, settings)
         except Exception as exc:  # a message the bag holds but cannot give back whole
             raise ReplayError(f"{bag}: reading stopped: {type(exc).__name__}: {exc}") from None
+        counts = {"scans": total, **{kind: sum(k == kind for _, k, _ in side) for kind in side_connections}}
+        reference += [(stamp, np.asarray(value)) for stamp, kind, value in side if kind == "reference"]  # scored only
+        side = [item for item in side if item[1] != "reference"]
         outcomes: dict = {}
         checks: list = []
         localizer = Localizer(config, settings, logging.getLogger("regor-replay"),
                               lambda outcome: outcomes.__setitem__(outcome.source.serial, outcome),
                               lambda prepared, frame: None, checks.append)
         localizer.configure()
-        counts = {"scans": total, **{kind: sum(k == kind for _, k, _ in side) for kind in side_connections}}
         registrations: list[Registration] = []
         handed, done, last = 0, 0, -np.inf
         ahead = max(settings.odometry_wait, READ_AHEAD_TOLERANCES * settings.odometry_tolerance)
@@ -200,7 +202,7 @@ def replay(bag: Path, config: RegorConfig, settings, topics: Topics, every: floa
                 message = reader.deserialize(raw, connection.msgtype)
                 stamp = stamp_seconds(message.header)
                 while handed < len(side) and side[handed][0] <= stamp + ahead:
-                    _hand_over(localizer, side[handed], reference)
+                    _hand_over(localizer, side[handed])
                     handed += 1
                 try:
                     points = cloud_to_xyz(message)
@@ -224,24 +226,19 @@ def replay(bag: Path, config: RegorConfig, settings, topics: Topics, every: floa
             raise ReplayError(f"{bag}: reading stopped: {type(exc).__name__}: {exc}") from None
     finally:
         reader.close()
-    for item in side[handed:]:   # the poses logged after the last scan, for the reference
-        if item[1] == "reference":
-            reference.append((item[0], np.asarray(item[2])))
     counts["reference"] = len(reference)
     return registrations, reference, counts, localizer.maps.prepared, checks
 
 
-def _hand_over(localizer, item, reference: list) -> None:
+def _hand_over(localizer, item) -> None:
     """One message beside the scans, to the localizer as the node's subscriptions hand it."""
     stamp, kind, value = item
     if kind == "odometry":
         localizer.context.add_odometry(stamp, value)
     elif kind == "imu":
         localizer.context.add_imu(*value)
-    elif kind == "tracked":
-        localizer.track_pose(value)
     else:
-        reference.append((stamp, value))
+        localizer.track_pose(value)
 
 
 def _registration(stamp: float, answer, outcome, seconds: float) -> Registration:
@@ -265,18 +262,19 @@ def _up_from(source_up: dict | None) -> str:
 def read_reference(path: Path) -> list[tuple[float, np.ndarray]]:
     """Reference poses from a file: TUM (t x y z qx qy qz qw per line) or a CSV whose header names
     the columns stamp (or t, timestamp), x, y, z, qx, qy, qz, qw."""
-    from scipy.spatial.transform import Rotation
-
-    from ..core import to_matrix
     from ..io.cloud_io import CloudFileError
-    from ..io.map_file import read_trajectory
+    from ..io.map_file import read_trajectory, trajectory_of_rows
     path = Path(path)
-    if path.suffix.lower() != ".csv":
-        try:
-            stamps, poses = read_trajectory(path)
-        except CloudFileError as exc:
-            raise ReplayError(f"--reference-file {exc}") from None
-        return list(zip(stamps.tolist(), poses, strict=True))
+    try:
+        stamps, poses = read_trajectory(path) if path.suffix.lower() != ".csv" else \
+            trajectory_of_rows(_reference_csv_rows(path), path)
+    except CloudFileError as exc:
+        raise ReplayError(f"--reference-file {exc}") from None
+    return list(zip(stamps.tolist(), poses, strict=True))
+
+
+def _reference_csv_rows(path: Path) -> np.ndarray:
+    """The rows (stamp x y z qx qy qz qw) of a reference CSV, by its header's column names."""
     if not path.is_file():
         raise ReplayError(f"--reference-file {path}: no such file")
     with open(path, newline="") as f:
@@ -292,10 +290,7 @@ def read_reference(path: Path) -> list[tuple[float, np.ndarray]]:
                          for r in table])
     except ValueError as exc:
         raise ReplayError(f"--reference-file {path}: not a number: {exc}") from None
-    if not len(rows) or not np.isfinite(rows).all() or (np.linalg.norm(rows[:, 4:], axis=1) < 1e-6).any():
-        raise ReplayError(f"--reference-file {path}: no rows, or a row with a non-finite value or a zero quaternion")
-    rotations = Rotation.from_quat(rows[:, 4:]).as_matrix()
-    return [(float(r[0]), to_matrix(R, r[1:4])) for r, R in zip(rows, rotations, strict=True)]
+    return rows.reshape(-1, 8)
 
 
 def nearest_reference(stamp: float, reference: list[tuple[float, np.ndarray]]) -> np.ndarray | None:
