@@ -16,7 +16,7 @@ import csv
 import math
 from pathlib import Path
 
-from regor_ros.tools.bench_results import open_run, run_files, same_run
+from regor_ros.bench.results import open_run, run_files, same_run
 
 
 def machine_dependent(column: str) -> bool:

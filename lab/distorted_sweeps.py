@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from regor_ros.bench.datasets import load_sequence
 from regor_ros.core import (
     RegorConfig,
     ScanSequence,
@@ -32,7 +33,6 @@ from regor_ros.core import (
     translation_error,
     warm_up,
 )
-from regor_ros.tools.map_benchmark import load_sequence
 
 SPINNING_SPAN_DEG = 180.0   # a scan whose azimuths span more than this was swept by a spinning sensor
 SEED = 73

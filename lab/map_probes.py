@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from regor_ros.bench.datasets import load_sequence, tiled
 from regor_ros.core import RegorConfig, is_success, prepare_cloud, register, transform_points, warm_up
-from regor_ros.tools.map_benchmark import load_sequence, tiled
 
 RECALL_KEYPOINTS = 2000   # a query's first keypoints whose nearest neighbour is checked exactly
 EXACT_BLOCK = 500         # query rows per exact product (the map's similarities, a block at a time)

@@ -20,8 +20,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from regor_ros.bench.datasets import NARROW_INPUTS, load_sequence
 from regor_ros.core import RegistrationError, RegorConfig, SearchRegion, is_success, prepare_cloud, register, warm_up
-from regor_ros.tools.map_benchmark import NARROW_INPUTS, load_sequence
 
 
 def main() -> None:

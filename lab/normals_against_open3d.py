@@ -17,9 +17,8 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from regor_ros.bench.datasets import load_pairs, load_sequence
 from regor_ros.core import RegorConfig, prepare_cloud
-from regor_ros.tools.map_benchmark import load_sequence
-from regor_ros.tools.pairs_benchmark import load_pairs
 
 data, out_path = Path(sys.argv[1]), Path(sys.argv[2])
 ORIGIN = np.zeros(3)

@@ -2,7 +2,7 @@
 odometry and an IMU buy a recording?
 
 Each shared sequence with consecutive scans (revisit/, maps/, xseason/) is written as a robot's
-rosbag2 (regor_ros.tools.robot_recording) several ways: odometry logged after its scan with the
+rosbag2 (regor_ros.bench.robot_recording) several ways: odometry logged after its scan with the
 scan's stamp (as a lidar-inertial odometry logs it), with it, before it, as 50 Hz wheel odometry,
 none; and a 200 Hz IMU reporting no orientation, its up the truth's tilted by 3 deg in a random
 direction each scan (the map's z as the map's up). Each is replayed with regor-replay's own entry
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from regor_ros.bench.robot_recording import Recording, load_recorded_sequence, write_recording
 from regor_ros.tools.replay import main as replay
-from regor_ros.tools.robot_recording import Recording, load_recorded_sequence, write_recording
 
 SEQUENCES = ("revisit/avia_hku2_loop", "maps/fastlio_avia_hku2", "maps/scaloam_mulran_kaist03",
              "xseason/eth_gazebo_summer_winter")

@@ -19,8 +19,8 @@ sys.path.insert(0, tree)
 import numpy as np  # noqa: E402
 
 import regor_ros  # noqa: E402
+from regor_ros.bench.datasets import INPUTS, load_sequence  # noqa: E402
 from regor_ros.core import RegorConfig, is_success, prepare_cloud, register, warm_up  # noqa: E402
-from regor_ros.tools.map_benchmark import INPUTS, load_sequence  # noqa: E402
 
 assert regor_ros.__file__.startswith(tree), f"imported {regor_ros.__file__}, not the tree's"
 warm_up()

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from regor_ros.bench.datasets import load_pairs, load_sequence, sequence_folders
+from regor_ros.bench.verify import scene_axes, shifted, turned
 from regor_ros.core import (
     ERROR_SIGMAS_99,
     RegorConfig,
@@ -24,9 +26,6 @@ from regor_ros.core import (
     verify,
     warm_up,
 )
-from regor_ros.tools.map_benchmark import load_sequence, sequence_folders
-from regor_ros.tools.pairs_benchmark import load_pairs
-from regor_ros.tools.verify_benchmark import scene_axes, shifted, turned
 
 SHARES = (0.5, 0.8, 1.05, 1.2, 1.5)   # of the tolerance; beyond 1: wrong
 

@@ -110,8 +110,8 @@ def moved_pair(name, seed):
 def avia_map():
     """The Livox Avia map prepared with its trajectory (outdoor preset), and its queries by id."""
     require_shared_data("the Avia map")
+    from regor_ros.bench.datasets import load_sequence
     from regor_ros.core import RegorConfig, prepare_cloud
-    from regor_ros.tools.map_benchmark import load_sequence
     cloud, trajectory, queries = load_sequence(DATA / "maps" / "fastlio_avia_hku2")
     prepared = prepare_cloud(cloud, RegorConfig.preset("outdoor"), "map", trajectory=trajectory)
     return prepared, {q.id: q for q in queries}

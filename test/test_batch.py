@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from conftest import DATA, require_shared_data
 
+from regor_ros.bench.batch_scaling import same_result
 from regor_ros.core import RegorConfig, register
 from regor_ros.tools.batch import Dispatcher, ResultFile, plain_worker_environment
-from regor_ros.tools.batch_benchmark import same_result
 from regor_ros.tools.batch_list import ListError, read_pairs
 
 SCANS = DATA / "maps" / "scaloam_mulran_kaist03" / "queries"
@@ -99,7 +99,7 @@ def test_two_workers_give_register_s_rows_and_bad_rows_get_an_error(first_run, s
     assert len({r["worker"] for r in good}) == 2, "both workers registered pairs"
     # seven pairs over five scans: the workers reuse clouds they prepared
     assert sum(r["reused"] for r in good) >= 4
-    assert all(len(r["transform"]) == 4 and "fitness" in r and r["seconds"] > 0 for r in good)
+    assert all(len(r["transform"]) == 4 and r["figures"]["fitness"] > 0 and r["seconds"] > 0 for r in good)
     assert "11 registered now" in done.stdout, done.stdout
 
 

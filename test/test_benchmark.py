@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from conftest import DATA, PAIRS, require_shared_data
 
+from regor_ros.bench.cli import main
+from regor_ros.bench.pairs import summarise
 from regor_ros.core import ORIGIN, RegorConfig, for_clouds_seen_from, prepare_cloud, register, rotation_error_deg
-from regor_ros.tools.benchmark import main
-from regor_ros.tools.pairs_benchmark import summarise
 
 TWO = ["3dmatch_redkitchen_5_6_ds", "stanford_bunny_045_to_000"]
 
@@ -99,8 +99,8 @@ def test_summary_recall_spread_inr_and_false_accepts():
 
 
 def test_a_random_motion_moves_the_source_viewpoint_with_the_source():
+    from regor_ros.bench.datasets import Pair
     from regor_ros.core.geometry import transform_points
-    from regor_ros.tools.pairs_benchmark import Pair
     rng = np.random.default_rng(0)
     src = rng.uniform(-1, 1, (50, 3))
     pair = Pair(3, "p", "indoor", src, src, np.eye(4), np.array([0.5, 0.0, 1.0]), None)
@@ -152,7 +152,7 @@ def test_threedmatch_benchmark_reports_recall_per_list_and_gross_wrong_poses(tmp
 
 
 def test_threedmatch_sample_is_fixed_and_a_bad_list_is_refused(tmp_path, capsys):
-    from regor_ros.tools.threedmatch_benchmark import load_list
+    from regor_ros.bench.datasets import load_list
     listing = [{"bench": "3DMatch", "scene": "s", "i": i, "j": i + 1, "T": np.eye(4).tolist()} for i in range(40)]
     (tmp_path / "pairs.json").write_text(json.dumps(listing))
     first = [e["name"] for e in load_list(tmp_path, 10, None)]

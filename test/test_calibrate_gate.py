@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from regor_ros.bench.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score, stable_fit
 from regor_ros.core import Figures, RegorConfig, RivalFigures, ambiguity
-from regor_ros.tools.calibrate_gate import Sample, fit, fit_alone, load_samples, main, score, stable_fit
 
 NAN = float("nan")
 
@@ -59,7 +59,7 @@ def test_a_run_without_a_full_visibility_check_is_judged_by_the_partial_threshol
     assert thresholds[1] <= 40 and 60 < thresholds[2] <= 70
     assert score(samples, thresholds) == (2, 2, 0, 4, 0)
     one_sided = sample("a", True, 40, 0.02).blinded(keep_source=True)
-    assert one_sided.violations == (0.02, None) and not one_sided.both_sides
+    assert one_sided.free_space == (0.02, None) and not one_sided.both_sides
 
 
 def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_path, capsys):
@@ -81,7 +81,7 @@ def test_the_command_reads_benchmark_rows_and_reports_each_held_out_place(tmp_pa
                              "rivals": rivals, "surface_agreement": 0.95, "log10_false_alarms": -8.0,
                              "independent_agreeing": 20, "constrained": "True", "error": ""})
     samples = load_samples([path], "regor")
-    assert [s.violation for s in samples] == [0.02, 0.03, 0.45]
+    assert [s.worst_free_space for s in samples] == [0.02, 0.03, 0.45]
     # a rival's lead chance as recorded; one from before it was recorded, one that breaks a
     # visibility check, or one with fewer agreeing matches than a pose needs (45 < 65) does not count
     acceptance = replace(RegorConfig.preset("indoor").acceptance, min_feature_inliers=65)

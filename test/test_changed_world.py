@@ -54,7 +54,7 @@ def test_a_conflict_whose_return_the_map_does_not_hold_counts():
 def summer_map():
     """The summer map prepared with its trajectory, and the winter queries by id."""
     require_shared_data("the cross-season map")
-    from regor_ros.tools.map_benchmark import load_sequence
+    from regor_ros.bench.datasets import load_sequence
     cloud, trajectory, queries = load_sequence(XSEASON)
     return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
 
@@ -65,16 +65,16 @@ def test_a_winter_scan_is_published_in_the_summer_map(summer_map):
     result = register(query.scan, prepared, OUTDOOR)
     assert is_success(result.transform, query.truth, "outdoor")
     assert result.accepted, result.reason
-    visibility = result.summary()["visibility"]
+    summary = result.summary()
     # what the check no longer counts is what would have withheld it
-    assert visibility["free_space_source"] + visibility["map_changed"] > GATE.max_free_space_violation
+    assert summary.figures.free_space_source + summary.visibility.map_changed > GATE.max_free_space_violation
 
 
 def test_a_narrow_view_of_a_winter_scan_is_refined_until_it_settles(summer_map):
     """The winter scan seen by a narrow sensor (the benchmark's --narrow): nearly all its keypoints lie
     within tau_e of the map at once, so the point-level refinement's count stops changing while the
     pose still moves. It was published 9.6 deg off; refined on, it settles at the truth."""
-    from regor_ros.tools.map_benchmark import narrow_view
+    from regor_ros.bench.datasets import narrow_view
     prepared, queries = summer_map
     query = queries["scan_000029"]
     result = register(narrow_view(query.scan, 0.0), prepared, OUTDOOR)

@@ -1,13 +1,20 @@
 """The /diagnostics status for each state of the node (levels and messages a monitor shows)."""
+import dataclasses
 import time
 
 from diagnostic_msgs.msg import DiagnosticStatus
 
+from regor_ros.core import Figures, Summary
+from regor_ros.core.gate.visibility import VisibilityFigures
 from regor_ros.ros.diagnostics import Health, diagnostic_status, seconds_since_process_start
 
-SUMMARY = {"accepted": False, "reason": "only 12 feature matches agree with the pose", "num_inliers": 300,
-           "fitness": 0.2, "feature_inliers": 12, "ambiguity": None, "timings": {"total": 1.5},
-           "visibility": {"worst_free_space": 0.01, "opposite_sides": 0.0}}
+SUMMARY = Summary(accepted=False, reason="only 12 feature matches agree with the pose", failed_check="min_feature_inliers",
+                  carried_by="", singled_out=False, ambiguity=None,
+                  figures=Figures(num_inliers=300, fitness=0.2, surface_agreement=1.0, log10_false_alarms=-1.0,
+                                  independent_agreeing=10, feature_inliers=12, free_space_source=0.01,
+                                  opposite_sides=0.0),
+                  visibility=VisibilityFigures(0.01, None, 0.0), timings={"total": 1.5})
+PUBLISHED = dataclasses.replace(SUMMARY, accepted=True, reason="", failed_check="")
 
 
 def status(**state):
@@ -21,7 +28,7 @@ def test_each_state_has_its_level_and_reason():
     assert preparing.level == DiagnosticStatus.WARN and "map" in preparing.message
     withheld = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary=SUMMARY)
     assert withheld.level == DiagnosticStatus.WARN and "12 feature matches" in withheld.message
-    published = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary={**SUMMARY, "accepted": True})
+    published = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary=PUBLISHED)
     assert published.level == DiagnosticStatus.OK
     malformed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_summary=SUMMARY,
                        last_bad_input="no x field")
@@ -31,10 +38,11 @@ def test_each_state_has_its_level_and_reason():
     values = {kv.key: kv.value for kv in withheld.values}
     assert values["last verdict"] == "rejected" and values["seconds total"] == "1.5"
     assert values["source_clouds"] == "2"
+    assert values["inliers"] == "300" and values["worst free space"] == "0.01"
 
 
 def test_map_mode_reports_the_prepared_map():
-    prepared = status(counters={"source_clouds": 1, "target_clouds": 1}, last_summary={**SUMMARY, "accepted": True},
+    prepared = status(counters={"source_clouds": 1, "target_clouds": 1}, last_summary=PUBLISHED,
                       map_info={"map_points": 207000, "map_keypoints": 42687, "map_preparation_seconds": 1.6})
     values = {kv.key: kv.value for kv in prepared.values}
     assert values["map_keypoints"] == "42687" and values["map_preparation_seconds"] == "1.6"

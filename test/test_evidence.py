@@ -5,14 +5,14 @@ import pytest
 from conftest import DATA, EARLIER_INDOOR, require_shared_data
 from scipy.spatial.transform import Rotation
 
+from regor_ros.bench.datasets import THINNING, load_pairs, load_sequence
+from regor_ros.bench.pairs import cross_place_pairs
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
 from regor_ros.core.gate.evidence import independent, log10_binomial_tail, log10_false_alarms
 from regor_ros.core.gate.visibility import free_space_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.map_benchmark import THINNING, load_sequence
-from regor_ros.tools.pairs_benchmark import cross_place_pairs, load_pairs
 
 OUTDOOR = RegorConfig.preset("outdoor")
 
@@ -47,7 +47,7 @@ def test_a_right_pose_lies_on_the_maps_surfaces_and_its_support_is_beyond_chance
     assert result.evidence.surface_agreement > 0.9
     assert result.evidence.log10_false_alarms < -5
     assert np.array_equal(result.candidates[0].transform, result.transform)   # its own pose leads
-    assert result.summary()["candidates"][0] == result.candidates[0].support > 0
+    assert result.summary().candidates[0] == result.candidates[0].support > 0
 
 
 def test_a_correct_fused_pose_two_degrees_off_passes_free_space_once_its_uncertainty_counts(avia_map):

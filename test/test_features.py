@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 from conftest import DATA, moved_pair, require_shared_data
 
+from regor_ros.bench.datasets import load_sequence
 from regor_ros.core import RegistrationError, RegorConfig, for_clouds_seen_from, prepare_cloud, register
 from regor_ros.core.features import largest_plane, surface_normals
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.map_benchmark import load_sequence
 
 
 def test_largest_plane_finds_the_ground_and_nothing_else():

@@ -5,6 +5,7 @@ import pytest
 from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
+from regor_ros.bench.datasets import UP_Z, Pair
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.config import ConfigError, parse_up
 from regor_ros.core.gate.figures import Figures
@@ -12,7 +13,6 @@ from regor_ros.core.gate.judge import judge
 from regor_ros.core.gate.measure import gravity_figures
 from regor_ros.core.gravity import GravityPrior
 from regor_ros.core.metrics import random_rigid_motion, rotation_error_deg, translation_error
-from regor_ros.tools.pairs_benchmark import UP_Z, Pair
 
 PAIR = "mulran_riv02_048_to_044"  # 12 m apart, 72 % overlap: Regor registers it with or without the prior
 

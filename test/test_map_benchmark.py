@@ -5,8 +5,8 @@ import json
 import numpy as np
 from conftest import DATA, require_shared_data
 
-from regor_ros.tools.benchmark import main
-from regor_ros.tools.map_benchmark import NARROW_STEP_DEG, narrow_view, tiled
+from regor_ros.bench.cli import main
+from regor_ros.bench.datasets import NARROW_STEP_DEG, narrow_view, tiled
 
 SEQUENCE = "avia_hku2_loop"   # the loop's way back (revisit/): queries metres from the map's poses
 QUERIES = ["scan_000180", "scan_000200"]  # one Regor registers, one it does not alone (measured)
@@ -136,7 +136,7 @@ def test_the_narrow_set_registers_the_views_that_return_enough(tmp_path):
 
 
 def test_sequences_of_one_place_are_no_cross_map_queries():
-    from regor_ros.tools.map_benchmark import one_place
+    from regor_ros.bench.datasets import one_place
     assert one_place("fastlio_avia_hku2", "avia_hku2_loop")   # one walk, one frame: a true pose exists there
     assert not one_place("fastlio_avia_hku2", "scaloam_mulran_kaist03")
     assert not one_place("eth_gazebo_summer_winter", "avia_hku2_loop")

@@ -55,7 +55,7 @@ def test_the_prepared_map_is_cached_once_for_each_key_and_rebuilt_when_unreadabl
     fresh, cached = register(scan, first.prepared, config), register(scan, second.prepared, config)
     assert fresh.accepted and is_success(fresh.transform, truth, "outdoor")
     np.testing.assert_array_equal(cached.transform, fresh.transform)
-    assert cached.summary()["visibility"] == fresh.summary()["visibility"]
+    assert cached.summary().visibility == fresh.summary().visibility
     assert len(second.prepared.map_view.trajectory) == len(first.prepared.map_view.trajectory) > 0
 
     # other feature settings, or no trajectory: a cache of their own, the first one kept

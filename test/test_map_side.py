@@ -5,11 +5,11 @@ import pytest
 from conftest import DATA, require_shared_data
 from scipy.spatial.transform import Rotation
 
+from regor_ros.bench.datasets import load_sequence
 from regor_ros.core import RegistrationError, RegorConfig, ScanSequence, prepare_cloud, register
 from regor_ros.core.gate.visibility import visibility_figures
 from regor_ros.core.geometry import to_matrix
 from regor_ros.core.metrics import ERROR_SIGMAS_99, error_sigmas, is_success
-from regor_ros.tools.map_benchmark import load_sequence
 
 OUTDOOR = RegorConfig.preset("outdoor")
 SEQUENCE = "fastlio_avia_hku2"
@@ -50,7 +50,7 @@ def test_a_scan_the_partial_threshold_withheld_is_published_once_the_map_side_is
     assert is_success(result.transform, query.truth, "outdoor")
     assert result.feature_inliers < OUTDOOR.acceptance.min_feature_inliers_partial
     assert result.accepted and result.figures.both_sides, result.reason
-    assert result.summary()["visibility"]["map_seen"] > 0.9
+    assert result.summary().visibility.map_seen > 0.9
 
 
 def test_the_covariance_covers_the_error_along_narrow_scans_weak_directions(avia):

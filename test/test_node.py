@@ -84,12 +84,12 @@ def test_viewpoint_parameters_choose_the_sides_of_the_free_space_check(pairs_nod
     assert not bad.successful and "x, y, z" in bad.reason
     src, tgt, _, _ = moved_pair("3dmatch_redkitchen_5_6_ds", 27)
     _, status = ros.register_pair(src, tgt, TIMEOUT)
-    both = status["visibility"]
+    both = status["figures"]
     assert both["free_space_source"] is not None and both["free_space_target"] is not None, status
     assert set_param(ros, "target_viewpoint", "none").successful
     try:
         _, status = ros.register_pair(src, tgt, TIMEOUT)
-        one = status["visibility"]
+        one = status["figures"]
         assert one["free_space_target"] is None and one["free_space_source"] is not None, status
         assert status["accepted"], status
     finally:
@@ -110,7 +110,7 @@ def test_diagnostics_are_published_at_a_steady_rate_with_the_last_verdict(pairs_
         assert status.level == DiagnosticStatus.OK and status.message == "pose published"
         values = {kv.key: kv.value for kv in status.values}
         assert values["last verdict"] == "accepted" and int(values["inliers"]) > 0
-        assert float(values["free-space violation"]) < 0.1 and "seconds total" in values
+        assert float(values["worst free space"]) < 0.1 and "seconds total" in values
     finally:
         ros.destroy_subscription(subscription)
 
@@ -207,7 +207,7 @@ def test_map_mode_prepares_the_target_once(install, ros, pairs_node):
         assert second["map_preparations"] == first["map_preparations"]
         # a map has no single viewpoint: its side is the map seen from where the pose puts the scan
         # (this target is a fragment of a room, so about half the scan lands on what it holds)
-        assert second["visibility"]["free_space_source"] is not None
+        assert second["figures"]["free_space_source"] is not None
         assert 0.2 < second["visibility"]["map_seen"] <= 1.0
     finally:
         assert node.stop() < 5.0
@@ -278,7 +278,7 @@ def test_map_mode_fuses_a_scan_sequence_along_odometry(install, ros, pairs_node)
     from conftest import DATA, require_shared_data
     from nav_msgs.msg import Odometry
 
-    from regor_ros.tools.map_benchmark import load_sequence
+    from regor_ros.bench.datasets import load_sequence
 
     pairs_node.stop()
     require_shared_data("the accumulation test")

@@ -26,7 +26,7 @@ ANSWER_TIMEOUT = 30.0
 def _driver_cloud_file(tmp_path: Path) -> Path:
     """130 k real OS1-64 points (five consecutive scans fused along odometry): 4.2 MB as a driver
     sends it (x y z intensity ring time)."""
-    from regor_ros.tools.map_benchmark import load_sequence
+    from regor_ros.bench.datasets import load_sequence
     _, _, queries = load_sequence(DATA / "maps" / "scaloam_mulran_kaist03")
     fused = next(q for q in queries if q.history is not None and len(q.history.scans) == 5).history.fused()
     path = tmp_path / "driver_cloud.npy"

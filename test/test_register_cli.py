@@ -154,7 +154,7 @@ def test_relocalize_with_no_node_running_says_so_without_waiting_for_the_answer_
 
 
 def test_bench_help_shows_examples_and_the_data_formats_and_writes_beside_the_committed_results():
-    proc = subprocess.run([sys.executable, "-m", "regor_ros.tools.benchmark", "--help"],
+    proc = subprocess.run([sys.executable, "-m", "regor_ros.bench.cli", "--help"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0
     assert "regor-bench --threedmatch ../shared/data/threedmatch --sample 200" in proc.stdout

@@ -76,7 +76,7 @@ def test_a_rejected_pose_is_retried_and_the_first_attempt_reported(kitchen_pair)
     thrice = register(src, tgt, strict.replace({"retries": 2}))
     assert (once.attempts, thrice.attempts) == (1, 3) and not thrice.accepted
     np.testing.assert_array_equal(once.transform, thrice.transform)
-    assert thrice.reason == once.reason and thrice.summary()["attempts"] == 3
+    assert thrice.reason == once.reason and thrice.summary().attempts == 3
     prepared = prepare_cloud(src, strict, "source")   # cannot be re-gridded
     assert register(prepared, tgt, strict.replace({"retries": 2})).attempts == 1
 
@@ -180,7 +180,7 @@ def test_a_home_fragment_is_not_published_on_a_hotel_fragment():
     came back to it. With the normals facing the sensors and the gate fitted for them (2026-11-28)
     it is not published; under the earlier gate it still is."""
     require_shared_data("the home / hotel cross-place case")
-    from regor_ros.tools.pairs_benchmark import load_pairs
+    from regor_ros.bench.datasets import load_pairs
     pairs = {p.name: p for p in load_pairs(DATA / "pairs_scenes", None)}
     hotel, home = pairs["3dmatch_hotel_umd3_28_31"].moved(4), pairs["3dmatch_home_at_53_57"]
     result = register(home.tgt, hotel.src, RegorConfig.preset("indoor").replace({"seed": 4}),

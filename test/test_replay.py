@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import DATA, require_shared_data
 
+from regor_ros.bench.robot_recording import RecordedSequence, Recording, load_recorded_sequence, write_recording
 from regor_ros.tools.replay import main
-from regor_ros.tools.robot_recording import RecordedSequence, Recording, load_recorded_sequence, write_recording
 
 WINTER = DATA / "xseason" / "eth_gazebo_summer_winter"
 AVIA = DATA / "maps" / "fastlio_avia_hku2"

@@ -129,7 +129,8 @@ def test_a_box_room_turned_by_a_quarter_is_withheld_with_the_truth_among_the_can
     np.testing.assert_array_equal(result.candidates[0].transform, result.transform)
     twin = result.candidates[1].transform
     assert rotation_error_deg(twin, T_gt) < 5 and translation_error(twin, T_gt) < 0.15
-    assert result.summary()["rivals"] and result.summary()["ambiguity"] == result.ambiguity
+    summary = result.summary()
+    assert summary.as_json()["figures"]["rivals"] and summary.ambiguity == result.ambiguity
 
 
 def test_a_small_overlaps_truth_is_among_the_quarter_turns_of_a_box_rooms_wrong_pose():
@@ -191,7 +192,7 @@ def test_a_low_overlap_pose_its_matches_single_out_is_published_with_fewer_than_
     result = register(*(prepare_cloud(cloud, config, viewpoint=ORIGIN) for cloud in (src, tgt)), config)
     assert rotation_error_deg(result.transform, T_gt) < 3 and translation_error(result.transform, T_gt) < 0.05
     assert result.feature_inliers < config.acceptance.min_feature_inliers
-    assert result.accepted and result.verdict.singled_out and result.summary()["singled_out"], result.reason
+    assert result.accepted and result.verdict.singled_out and result.summary().singled_out, result.reason
     assert all(lead <= config.acceptance.max_ambiguity for lead, far in zip(
         result.rivals.lead_chance, another_answer(result.rivals.moved_tau, result.rivals.distance_deg), strict=True)
         if far)

@@ -4,12 +4,12 @@ is read as it always was."""
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from regor_ros.bench.datasets import shaken
 from regor_ros.core import RegorConfig, prepare_cloud, register
 from regor_ros.core.estimate import inliers_at, resolution_uncertainty
 from regor_ros.core.features import prepare
 from regor_ros.core.gate.visibility import free_space_figures
 from regor_ros.core.geometry import to_matrix
-from regor_ros.tools.map_benchmark import shaken
 
 OUTDOOR = RegorConfig.preset("outdoor")
 SHAKE_DEG = 3.0

@@ -4,11 +4,11 @@ does not; either test against chance carries a pose (judge)."""
 import numpy as np
 from conftest import DATA, EARLIER_INDOOR, require_shared_data
 
+from regor_ros.bench.datasets import load_sequence
 from regor_ros.core import Figures, RegorConfig, judge, prepare_cloud, register
 from regor_ros.core.estimate import plane_refine, plane_thresholds, point_refine
 from regor_ros.core.gate.surface_evidence import surface_evidence
 from regor_ros.core.metrics import is_success
-from regor_ros.tools.map_benchmark import load_sequence
 
 OUTDOOR = RegorConfig.preset("outdoor")
 AGAINST_A_MAP = OUTDOOR.replace({"features.remove_ground": False})   # a scan keeps its ground against a map
@@ -143,4 +143,4 @@ def test_the_pipeline_measures_the_surfaces_only_when_they_can_change_the_verdic
     assert is_success(thinned.transform, query.truth, "outdoor")
     assert thinned.evidence.log10_false_alarms > 0          # the features alone would withhold it
     assert thinned.accepted and thinned.verdict.carried_by == "surfaces", thinned.reason
-    assert thinned.summary()["carried_by"] == "surfaces"
+    assert thinned.summary().carried_by == "surfaces"

@@ -74,7 +74,7 @@ def test_bad_poses_are_refused_with_a_reason(demo):
 @pytest.fixture(scope="module")
 def summer_map():
     require_shared_data("the cross-season map")
-    from regor_ros.tools.map_benchmark import load_sequence
+    from regor_ros.bench.datasets import load_sequence
     cloud, trajectory, queries = load_sequence(DATA / "xseason" / "eth_gazebo_summer_winter")
     return prepare_cloud(cloud, OUTDOOR, "map", trajectory=trajectory), {q.id: q for q in queries}
 

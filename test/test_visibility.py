@@ -142,7 +142,7 @@ def test_a_map_without_viewpoint_still_registers_and_is_checked_from_the_scans_s
     # a fragment of a room as the map: too little of the scan lands on what it holds to count
     assert result.visibility.map_seen < INDOOR.acceptance.map_view_min_seen
     assert result.visibility.free_space_target is None and not result.figures.both_sides
-    assert result.summary()["visibility"]["worst_free_space"] == result.visibility.free_space_source
+    assert result.summary().figures.worst_free_space == result.visibility.free_space_source
 
 
 def scenes_pair_source(name, motion_seed):
@@ -179,7 +179,7 @@ def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
     only the kitchen sensor's free space shows it wrong. Without the kitchen's viewpoint (as for a
     map) the check sees one side, and the partial feature threshold has to reject it."""
     require_shared_data("this cross-place pair")
-    from regor_ros.tools.pairs_benchmark import load_pairs
+    from regor_ros.bench.datasets import load_pairs
     pairs = {p.name: p for p in load_pairs(DATA / "pairs", None)}
     home, kitchen = pairs["3dmatch_home_at_38_41_ds"].moved(6), pairs["3dmatch_redkitchen_21_34_ds"]
     # the point-level pose (refined point to plane, 51 agree: the feature count alone rejects it)
@@ -189,7 +189,7 @@ def test_against_a_cloud_without_viewpoint_features_must_stand_on_their_own():
     assert both.feature_inliers >= cfg.acceptance.min_feature_inliers
     as_map = prepare_cloud(kitchen.tgt, cfg, viewpoint=None)
     one_sided = register(home.src, as_map, cfg, source_viewpoint=home.src_viewpoint)
-    assert not one_sided.figures.both_sides and one_sided.summary()["visibility"]["both_sides"] is False
+    assert not one_sided.figures.both_sides and one_sided.summary().as_json()["figures"]["both_sides"] is False
     assert not one_sided.accepted and "min_feature_inliers_partial" in one_sided.reason
     lenient = cfg.replace({"min_feature_inliers_partial": cfg.acceptance.min_feature_inliers})
     assert register(home.src, as_map, lenient, source_viewpoint=home.src_viewpoint).accepted

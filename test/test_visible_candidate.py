@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from conftest import DATA, load_threedmatch, require_shared_data
 
+from regor_ros.bench.datasets import THINNING, load_sequence
 from regor_ros.core import (
     ORIGIN,
     RegorConfig,
@@ -16,7 +17,6 @@ from regor_ros.core import (
     translation_error,
 )
 from regor_ros.core.visible_candidate import visible_candidate
-from regor_ros.tools.map_benchmark import THINNING, load_sequence
 
 KITCHEN = "7-scenes-redkitchen"
 

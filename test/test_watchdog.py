@@ -61,7 +61,7 @@ def watched(install, ros, tmp_path):
     """The installed node with the summer map, on-demand registration, the watchdog at 2 Hz; a
     publisher of the stack's pose; the winter queries."""
     require_shared_data("the watchdog over DDS")
-    from regor_ros.tools.map_benchmark import load_sequence
+    from regor_ros.bench.datasets import load_sequence
     _, _, queries = load_sequence(XSEASON)
     node = NodeProcess(install, "--params-file",
                        str(install / "regor_ros" / "share" / "regor_ros" / "config" / "outdoor.yaml"),

@@ -71,6 +71,9 @@ from .search_region import (
 from .sequence import (
     ScanSequence as ScanSequence,
 )
+from .summary import (
+    Summary as Summary,
+)
 from .verification import (
     Verification as Verification,
     verify as verify,

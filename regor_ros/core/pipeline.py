@@ -35,6 +35,7 @@ from .metrics import random_rigid_motion
 from .regenerate import regenerate
 from .search_region import SearchRegion, restrict
 from .sequence import ScanSequence
+from .summary import Summary
 from .viewpoint import ORIGIN
 from .visible_candidate import visible_candidate
 
@@ -132,29 +133,15 @@ class RegistrationResult:
             return None
         return self.candidates[0].support / max(self.candidates[1].support, 1)
 
-    def summary(self) -> dict:
-        """The verdict and quality figures as plain values, for logs, status messages and JSON."""
-        return {
-            "accepted": self.accepted, "reason": self.reason,
-            "num_inliers": self.num_inliers, "fitness": self.fitness,
-            "inlier_rmse": self.inlier_rmse, "feature_inliers": self.feature_inliers,
-            "source_keypoints": self.num_source_keypoints,
-            "target_keypoints": self.num_target_keypoints,
-            "stage_sizes": self.stage_sizes, "selected": self.selected, "timings": self.timings,
-            "attempts": self.attempts,
-            "visibility": {**self.visibility.as_dict(), "worst_free_space": _measured(self.figures.worst_free_space),
-                           "both_sides": bool(self.figures.both_sides)},
-            "ambiguity": self.ambiguity,
-            "rivals": self.rivals.rows(), "failed_check": self.verdict.failed, "carried_by": self.verdict.carried_by,
-            "singled_out": self.verdict.singled_out,
-            "gate": self.figures.columns(),
-            "evidence": None if self.evidence is None else self.evidence.as_dict(),
-            "candidates": [c.support for c in self.candidates], "candidate_margin": self.candidate_margin,
-        }
-
-
-def _measured(value: float) -> float | None:
-    return None if np.isnan(value) else float(value)
+    def summary(self) -> Summary:
+        """The verdict and every figure as plain values, each under one name: for logs, status
+        messages, CSVs and JSON (Summary.as_json)."""
+        return Summary.judged(self.verdict, self.figures, self.visibility, self.timings,
+                              inlier_rmse=float(self.inlier_rmse), source_keypoints=self.num_source_keypoints,
+                              target_keypoints=self.num_target_keypoints, selected=self.selected,
+                              stage_sizes=dict(self.stage_sizes), attempts=self.attempts, evidence=self.evidence,
+                              candidates=[int(c.support) for c in self.candidates],
+                              candidate_margin=self.candidate_margin)
 
 
 class _FromCloud:

@@ -18,6 +18,7 @@ truth fall on either side of it (results/verify_edge).
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -35,6 +36,7 @@ from .matching import match_features
 from .metrics import rotation_error_deg, translation_error
 from .pipeline import FROM_CLOUD, CloudInput, SourceInput, prepare_pair, refined_from
 from .sequence import checked_pose
+from .summary import Summary
 
 
 @dataclass
@@ -54,12 +56,14 @@ class Verification:
     visibility: VisibilityFigures
     timings: dict[str, float] = field(default_factory=dict)
 
-    def summary(self) -> dict:
-        """The verdict, the correction and the figures as plain values, for logs, status and JSON."""
-        return {"accepted": self.accepted, "reason": self.reason, "correction_m": self.correction_m,
-                "correction_deg": self.correction_deg, "within_tolerance": self.within_tolerance,
-                "failed_check": self.verdict.failed,
-                "gate": self.figures.columns(), "visibility": self.visibility.as_dict(), "timings": self.timings}
+    def summary(self) -> Summary:
+        """The verdict, the correction and the figures, each under one name: for logs, status and
+        JSON (Summary.as_json). ``accepted`` and ``reason`` are the verification's, not the gate's."""
+        return dataclasses.replace(
+            Summary.judged(self.verdict, self.figures, self.visibility, self.timings,
+                           correction_m=float(self.correction_m), correction_deg=float(self.correction_deg),
+                           within_tolerance=bool(self.within_tolerance)),
+            accepted=self.accepted, reason=self.reason)
 
 
 def verify(source: SourceInput, target: CloudInput, T_target_source, config: RegorConfig | None = None, *,

@@ -13,9 +13,12 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+if TYPE_CHECKING:
+    from ..core import Summary
 
 STATUS_NAME = "regor_ros: registration"
 WATCHDOG_NAME = "regor_ros: localization watchdog"
@@ -31,7 +34,7 @@ class Health:
     preparing_map: bool = False
     last_error: str = ""                   # why the last input could not be registered
     last_bad_input: str = ""               # the last malformed cloud since the last registration
-    last_summary: dict | None = None    # RegistrationResult.summary() of the last registration
+    last_summary: Summary | None = None    # RegistrationResult.summary() of the last registration
     counters: dict[str, int] = field(default_factory=dict)  # the node's counters, clouds received included
     alone_because: dict[str, int] = field(default_factory=dict)  # scans to fuse registered alone, by why
     map_info: dict[str, object] = field(default_factory=dict)  # map mode: the prepared map's size and time
@@ -60,7 +63,9 @@ def seconds_since_process_start() -> float | None:
 
 
 def _value(v) -> str:
-    return f"{v:.4g}" if isinstance(v, float) else str(v)
+    if isinstance(v, float):
+        return "None" if v != v else f"{v:.4g}"   # NaN: not measured
+    return str(v)
 
 
 def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
@@ -83,22 +88,22 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
         level, message = DiagnosticStatus.WARN, "map not prepared yet"
     elif summary is None:
         level, message = DiagnosticStatus.WARN, "waiting for a registration"
-    elif not summary["accepted"]:
-        level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary['reason']}"
+    elif not summary.accepted:
+        level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary.reason}"
     values = {"lifecycle": health.lifecycle, **health.counters,
               **{f"registered alone: {why}": n for why, n in health.alone_because.items()},
               **health.inputs, **health.map_info}
     if health.ready_after_s is not None:
         values["ready after seconds"] = health.ready_after_s
     if summary is not None:
-        visibility = summary["visibility"]
+        figures = summary.figures
         values.update({
-            "last verdict": "accepted" if summary["accepted"] else "rejected",
-            "inliers": summary["num_inliers"], "fitness": summary["fitness"],
-            "feature inliers": summary["feature_inliers"],
-            "free-space violation": visibility["worst_free_space"],
-            "opposite sides": visibility["opposite_sides"], "ambiguity": summary["ambiguity"],
-            **{f"seconds {stage}": seconds for stage, seconds in summary["timings"].items()},
+            "last verdict": "accepted" if summary.accepted else "rejected",
+            "inliers": int(figures.num_inliers), "fitness": float(figures.fitness),
+            "feature inliers": int(figures.feature_inliers),
+            "worst free space": float(figures.worst_free_space),
+            "opposite sides": float(figures.opposite_sides), "ambiguity": summary.ambiguity,
+            **{f"seconds {stage}": seconds for stage, seconds in summary.timings.items()},
         })
     return DiagnosticStatus(level=level, name=STATUS_NAME, message=message, hardware_id=node_name,
                             values=[KeyValue(key=k, value=_value(v)) for k, v in values.items()])

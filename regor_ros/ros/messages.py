@@ -123,4 +123,4 @@ def correspondence_markers(result: RegistrationResult, header: Header, max_lines
 
 def status_message(result: RegistrationResult, extra: dict) -> String:
     """Quality figures, stage sizes and timings as JSON, for logs and dashboards."""
-    return String(data=json.dumps({**result.summary(), **extra}))
+    return String(data=json.dumps({**result.summary().as_json(), **extra}))

@@ -15,8 +15,12 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..core import Summary
 
 VERIFIED, SUSPECT, LOST, UNCHECKED = "verified", "suspect", "lost", "unchecked"
 POSES_KEPT = 200  # the stack's newest poses (a few seconds of a fast tracker): the scan's stamp is among them
@@ -41,7 +45,7 @@ class Check:
     pose_stamp: float | None  # the stack's pose it checked
     failures: int             # failed checks in a row, this one included
     correction: tuple[float, float] | None = None  # (m, deg) where the data put the pose
-    summary: dict | None = None  # core Verification.summary()
+    summary: Summary | None = None  # core Verification.summary()
 
     def as_dict(self) -> dict:
         out = {"watchdog": self.state, "reason": self.reason, "scan_stamp": self.scan_stamp,
@@ -49,7 +53,7 @@ class Check:
         if self.correction is not None:
             out.update(correction_m=self.correction[0], correction_deg=self.correction[1])
         if self.summary is not None:
-            out["verification"] = self.summary
+            out["verification"] = self.summary.as_json()
         return out
 
 

@@ -89,7 +89,8 @@ def row_identity(row: PairRow) -> dict:
 
 def result_row(result) -> dict:
     """A registration's output row: the pose, its covariance, the verdict and the gate's figures."""
-    return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(), **result.summary()}
+    return {"transform": result.transform.tolist(), "covariance": result.covariance.tolist(),
+            **result.summary().as_json()}
 
 
 def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int,
@@ -115,7 +116,8 @@ def register_row(row: PairRow, overrides: dict[str, object], cache_capacity: int
         if row.pose is not None:   # a candidate that comes with its pose: verified, not searched
             given = np.array(row.pose).reshape(4, 4)
             checked = verify(source, target, given, config, **kwargs)
-            out.update({"transform": checked.transform.tolist(), "given": given.tolist(), **checked.summary()})
+            out.update({"transform": checked.transform.tolist(), "given": given.tolist(),
+                        **checked.summary().as_json()})
         else:
             out.update(result_row(register(source, target, config, **kwargs)))
         out.update(reused=int(source_reused) + int(target_reused), error="")

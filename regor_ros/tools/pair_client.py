@@ -110,8 +110,9 @@ class PairClient(Node):
 def verdict_line(status: dict) -> str:
     """The status message's verdict in one short line (--status prints all of it)."""
     evidence = status.get("evidence") or {}
-    worst = (status.get("visibility") or {}).get("worst_free_space")
-    figures = [f"{status['num_inliers']} inliers", f"{status['feature_inliers']} feature matches agree"]
+    measured = status["figures"]
+    worst = measured.get("worst_free_space")
+    figures = [f"{measured['num_inliers']:.0f} inliers", f"{measured['feature_inliers']:.0f} feature matches agree"]
     if evidence.get("log10_false_alarms") is not None:
         figures.append(f"10^{evidence['log10_false_alarms']:.1f} false alarms")
     if worst is not None:

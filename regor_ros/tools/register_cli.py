@@ -39,7 +39,7 @@ def parse_overrides(items):
 
 def report(result, ground_truth=None) -> dict:
     from ..core import rotation_error_deg, translation_error  # scipy's load: not for --help
-    out = {"transform": result.transform.tolist(), **result.summary()}
+    out = {"transform": result.transform.tolist(), **result.summary().as_json()}
     if ground_truth is not None:
         out["rotation_error_deg"] = rotation_error_deg(result.transform, ground_truth)
         out["translation_error_m"] = translation_error(result.transform, ground_truth)
@@ -50,10 +50,11 @@ def print_text(rep: dict) -> None:
     np.set_printoptions(precision=6, suppress=True)
     print("T_target_source (maps source points into the target frame):")
     print(np.array(rep["transform"]))
-    print(f"inliers: {rep['num_inliers']} of {rep['source_keypoints']} source keypoints "
-          f"(fitness {rep['fitness']:.3f}), RMSE {rep['inlier_rmse']:.4f} m, "
-          f"{rep['feature_inliers']} feature matches agree")
-    worst = rep["visibility"]["worst_free_space"]
+    figures = rep["figures"]
+    print(f"inliers: {figures['num_inliers']:.0f} of {rep['source_keypoints']} source keypoints "
+          f"(fitness {figures['fitness']:.3f}), RMSE {rep['inlier_rmse']:.4f} m, "
+          f"{figures['feature_inliers']:.0f} feature matches agree")
+    worst = figures["worst_free_space"]
     if worst is not None:
         print(f"free space: {100 * worst:.1f} % of a cloud inside space the other sensor saw through")
     print("stages: " + ", ".join(f"{k} {v}" for k, v in rep["stage_sizes"].items()))

@@ -93,7 +93,7 @@ def main(argv=None) -> int:
         print(f"regor-verify: {exc}", file=sys.stderr)
         return 2
     if args.json:
-        print(json.dumps({"transform": result.transform.tolist(), **result.summary()}, indent=2))
+        print(json.dumps({"transform": result.transform.tolist(), **result.summary().as_json()}, indent=2))
     else:
         moved = f" (the data move it by {result.correction_m:.2f} m and {result.correction_deg:.1f} deg)"
         print(f"verified{moved}" if result.accepted else

@@ -49,10 +49,6 @@ class Evidence:
     chance: float                 # probability that an unrelated match agrees with a pose
     log10_false_alarms: float     # log10(hypotheses tried x binomial tail of the agreeing count)
 
-    def as_dict(self):
-        """The figures as plain values, for summaries and JSON."""
-        return dict(vars(self))
-
 
 def on_surface(placed: np.ndarray, paired_target: np.ndarray, paired_normals: np.ndarray,
                resolution: float) -> np.ndarray:

@@ -26,7 +26,7 @@ class RivalFigures:
 
     inlier_ratio: np.ndarray    # its inliers / the pose's
     feature_ratio: np.ndarray   # its agreeing feature matches / the pose's
-    violation: np.ndarray       # its worst free-space figure
+    worst_free_space: np.ndarray  # its worse free-space figure (Figures.worst_free_space)
     opposite_sides: np.ndarray  # its matched surface seen from opposite sides
     distance_deg: np.ndarray    # its rotation from the pose after refinement
     lead_chance: np.ndarray     # chance that a tie gives the pose its lead in independent agreeing matches
@@ -35,7 +35,7 @@ class RivalFigures:
 
     @classmethod
     def of(cls, rows) -> RivalFigures:
-        """From (inlier ratio, feature ratio, violation, opposite sides, distance, lead chance,
+        """From (inlier ratio, feature ratio, worst free space, opposite sides, distance, lead chance,
         moved, false alarms) rows, None for a figure not measured (and for a row's missing last figures: a CSV from
         before they were recorded)."""
         width = len(dataclasses.fields(cls))
@@ -113,7 +113,7 @@ class Figures:
             if f.name != "rivals":
                 value = getattr(self, f.name)
                 out[f.name] = None if isinstance(value, float) and np.isnan(value) else value
-        out["rivals"] = ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:{r['violation']}:"
+        out["rivals"] = ";".join(f"{r['inlier_ratio']:.3f}:{r['feature_ratio']:.3f}:{r['worst_free_space']}:"
                                  f"{r['opposite_sides']}:{r['distance_deg']:.1f}:{r['lead_chance']}:{r['moved_tau']:.1f}:"
                                  f"{r['log10_false_alarms']}"
                                  for r in self.rivals.rows())

@@ -53,7 +53,7 @@ def rival_chances(figures: Figures, acceptance: AcceptanceConfig):
     r, at_least = figures.rivals, acceptance
     with np.errstate(invalid="ignore"):
         counts = (another_answer(r.moved_tau, r.distance_deg)
-                  & ~(r.violation > _per_pose(at_least.max_free_space_violation))
+                  & ~(r.worst_free_space > _per_pose(at_least.max_free_space_violation))
                   & ~(r.opposite_sides > _per_pose(at_least.max_opposite_sides))
                   & (r.inlier_ratio * _per_pose(figures.num_inliers) >= _per_pose(at_least.min_inliers))
                   & (r.inlier_ratio * _per_pose(figures.fitness) >= _per_pose(at_least.min_fitness))

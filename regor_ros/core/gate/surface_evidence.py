@@ -50,10 +50,6 @@ class SurfaceEvidence:
     decoys: int                # decoys that did not come back to the pose
     log10_false_alarms: float  # NaN without a decoy
 
-    def as_dict(self):
-        """The figures as plain values, for summaries and JSON."""
-        return dict(vars(self))
-
 
 def cells_on_surface(T: np.ndarray, source: PreparedCloud, target: PreparedCloud, tolerance: float,
                      resolution: float, radius: float) -> tuple[int, int]:

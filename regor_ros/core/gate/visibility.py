@@ -54,14 +54,6 @@ class VisibilityFigures:
                 "free_space_target": measured(self.free_space_target),
                 "opposite_sides": measured(self.opposite_sides)}
 
-    def as_dict(self):
-        """The figures as plain values, for summaries and JSON (the worst side and whether both were
-        checked are the gate's figures: Figures.worst_free_space, Figures.both_sides)."""
-        return {"free_space_source": self.free_space_source, "free_space_target": self.free_space_target,
-                "opposite_sides": self.opposite_sides, "source_seen": self.source_seen,
-                "target_seen": self.target_seen, "map_seen": self.map_seen, "shake_bins": self.shake_bins,
-                "map_changed": self.map_changed}
-
 
 def _fraction(seen: int, inside: int, min_seen: int) -> float | None:
     return inside / seen if seen >= min_seen else None

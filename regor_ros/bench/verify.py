@@ -34,10 +34,9 @@ from ..core import (
     verify,
     warm_up,
 )
-from .bench_results import write_results
-from .map_benchmark import INPUTS, load_sequence, sequence_folders
-from .pairs_benchmark import load_pairs
+from .datasets import INPUTS, load_pairs, load_sequence, sequence_folders
 from .peers import kiss_matcher_solution
+from .results import write_results
 
 NUDGE = (0.2, 1.0)                  # [m], [deg]: a right pose as a tracker holds it
 NUDGE_SHARE = 2.0 / 3.0             # at most this share of the success tolerance (an object's is centimetres)

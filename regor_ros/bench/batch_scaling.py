@@ -18,9 +18,9 @@ import numpy as np
 
 from ..core import RegorConfig, is_success, register
 from ..io.cloud_io import read_cloud
-from .batch import Progress, ResultFile, kernel_threads, open_client, run_batch
-from .batch_list import read_pairs
-from .bench_results import write_results
+from ..tools.batch import Progress, ResultFile, kernel_threads, open_client, run_batch
+from ..tools.batch_list import read_pairs
+from .results import write_results
 
 CACHE_CLOUDS = 16  # regor-batch's default
 

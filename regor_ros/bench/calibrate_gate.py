@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import Figures, RegorConfig, passes, stack
-from .bench_results import open_run, place, same_place
+from .results import open_run, place, same_place
 
 VIOLATION_GRID = np.round(np.arange(0.02, 0.51, 0.01), 2)
 BOTH_SIDES_GRID = np.append(np.round(np.arange(0.005, 0.051, 0.005), 3), 1.0)   # 1: off
@@ -88,12 +88,12 @@ class Sample:
         return int(self.figures.feature_inliers)
 
     @property
-    def violation(self) -> float | None:
+    def worst_free_space(self) -> float | None:
         worst = float(self.figures.worst_free_space)
         return None if np.isnan(worst) else worst
 
     @property
-    def violations(self) -> tuple:
+    def free_space(self) -> tuple:
         """(source, target) free-space figures; None for a side not checked."""
         return tuple(None if np.isnan(v) else float(v)
                      for v in (self.figures.free_space_source, self.figures.free_space_target))
@@ -120,9 +120,9 @@ class Sample:
         figures = replace(self.figures, free_space_target=unknown, opposite_sides=unknown)
         if not keep_source:
             rivals = self.figures.rivals
-            blind = np.full_like(rivals.violation, unknown)
+            blind = np.full_like(rivals.worst_free_space, unknown)
             figures = replace(figures, free_space_source=unknown,
-                              rivals=replace(rivals, violation=blind, opposite_sides=blind))
+                              rivals=replace(rivals, worst_free_space=blind, opposite_sides=blind))
         return replace(self, figures=figures)
 
 
@@ -384,7 +384,7 @@ def wrong_held_out(folded: dict[str, list]) -> str:
                     off = "no truth" if np.isnan(s.error[0]) else f"{s.error[0]:.1f} deg, {s.error[1]:.2f} m"
                     lines.append(f"| {kind} | {family} | {s.run} | {off}{' (**gross**)' if s.gross else ''} | "
                                  f"{s.feature_inliers} | "
-                                 + ", ".join("-" if v is None else f"{v:.3f}" for v in s.violations) + " |")
+                                 + ", ".join("-" if v is None else f"{v:.3f}" for v in s.free_space) + " |")
     return "\n".join(lines) if len(lines) > 2 else "None."
 
 

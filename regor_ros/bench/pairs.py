@@ -10,19 +10,16 @@ pose published there is wrong.
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
 import traceback
 from collections import defaultdict
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core import (
     INLIER_THRESHOLDS,
-    ORIGIN,
     ConfigError,
     RegorConfig,
     correct_mask,
@@ -30,11 +27,13 @@ from ..core import (
     is_success,
     match_features,
     prepare_cloud,
-    random_rigid_motion,
     rotation_error_deg,
     translation_error,
 )
-from .bench_results import (
+from ..tools.register_cli import parse_overrides
+from .datasets import UP_Z, Pair, load_pairs
+from .peers import DESCRIPTIONS, METHODS
+from .results import (
     GATE_COLUMNS,
     LEVEL_NOTE,
     STAGES,
@@ -43,80 +42,15 @@ from .bench_results import (
     header,
     place,
     same_place,
-    selected,
     write_results,
 )
-from .peers import DESCRIPTIONS, METHODS
-from .register_cli import parse_overrides
 
 CROSS_PLACE_NOTE = ("; cross-place: each source against one target of every other place per seed, and each target "
                     "against one source, no true pose")
-UP_Z = np.array([0.0, 0.0, 1.0])  # a level-mounted sensor's up in its own frame
 CSV_FIELDS = ["seed", "pair", "kind", "method", "success", "accepted", "rotation_error_deg",
               "translation_error_m", "seconds_registration", "seconds_total",
               *(f"seconds_{stage}" for stage in STAGES), "inliers_final",
               "final_count", "inliers_initial", "initial_count", *GATE_COLUMNS, "error"]
-
-
-def load_pairs(folder: Path, name_filter: str | None):
-    """Each selected pair; its index in pairs.json seeds the pair's random motion, so a filtered
-    run moves a pair as a full run does."""
-    listing = json.loads((folder / "pairs.json").read_text())
-    for index, entry in enumerate(listing):
-        if not selected(entry["name"], name_filter):
-            continue
-        d = folder / entry["name"]
-        yield Pair(index, entry["name"], entry["kind"], np.load(d / "src.npy"), np.load(d / "tgt.npy"),
-                   np.loadtxt(d / "gt.txt"), _viewpoint(entry.get("src_viewpoint", ORIGIN)),
-                   _viewpoint(entry.get("tgt_viewpoint", ORIGIN)))
-
-
-def _viewpoint(value):
-    return None if value is None else np.asarray(value, dtype=np.float64)
-
-
-@dataclass
-class Pair:
-    index: int
-    name: str
-    kind: str
-    src: np.ndarray
-    tgt: np.ndarray
-    T_gt: np.ndarray | None              # T_target_source; None: different places, no true pose
-    src_viewpoint: np.ndarray | None     # sensor position in the cloud's frame; None = unknown
-    tgt_viewpoint: np.ndarray | None
-    src_up: np.ndarray | None = None     # up direction in the cloud's frame; None = unknown
-    tgt_up: np.ndarray | None = None
-
-    def moved(self, seed: int | None) -> Pair:
-        """The pair with its source (and the source's viewpoint and up) moved by the seeded motion."""
-        if seed is None:
-            return self
-        M = random_rigid_motion([seed, self.index])
-        viewpoint = None if self.src_viewpoint is None else M[:3, :3] @ self.src_viewpoint + M[:3, 3]
-        return dataclasses.replace(self, src=self.src @ M[:3, :3].T + M[:3, 3],
-                                   T_gt=None if self.T_gt is None else self.T_gt @ np.linalg.inv(M),
-                                   src_viewpoint=viewpoint,
-                                   src_up=None if self.src_up is None else M[:3, :3] @ self.src_up)
-
-    def unseen(self) -> Pair:
-        """The pair with neither sensor position known (--no-viewpoints: a map without its
-        trajectory, clouds not in their sensors' frames): no free space is checked and the normals
-        keep the solver's signs."""
-        return dataclasses.replace(self, src_viewpoint=None, tgt_viewpoint=None)
-
-    def swapped(self) -> Pair:
-        """The target as the source and the source as the target; no true pose."""
-        return dataclasses.replace(self, src=self.tgt, tgt=self.src, T_gt=None,
-                                   src_viewpoint=self.tgt_viewpoint, tgt_viewpoint=self.src_viewpoint,
-                                   src_up=self.tgt_up, tgt_up=self.src_up)
-
-    def configured(self, config: RegorConfig) -> RegorConfig:
-        """``config`` with the pair's up directions as its gravity prior, when both are known."""
-        if self.src_up is None or self.tgt_up is None:
-            return config
-        return config.replace({"gravity.source_up": " ".join(f"{v:.9f}" for v in self.src_up),
-                               "gravity.target_up": " ".join(f"{v:.9f}" for v in self.tgt_up)})
 
 
 def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> list[dict]:
@@ -151,8 +85,8 @@ def evaluate_pair(pair: Pair, methods, config: RegorConfig, seed) -> list[dict]:
             "seconds_registration": out.seconds,
             "seconds_total": out.seconds + (0.0 if out.includes_features else feature_seconds),
         })
-        if out.figures is not None:
-            row.update(gate_columns(out.figures))
+        if out.summary is not None:
+            row.update(gate_columns(out.summary))
         if out.final is not None and T_gt is not None:
             final_source, final_target = out.final
             row["inliers_final"] = int(correct_mask(final_source, final_target, T_gt, threshold).sum())

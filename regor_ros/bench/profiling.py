@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core import RegorConfig, is_success, prepare_cloud, register
-from .bench_results import STAGES, header
-from .map_benchmark import INPUTS, load_sequence, sequence_folders
-from .pairs_benchmark import load_pairs
+from .datasets import INPUTS, load_pairs, load_sequence, sequence_folders
+from .results import STAGES, header
 
 PROFILE_SEED = 1
 TOP_FUNCTIONS = 25

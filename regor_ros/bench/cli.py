@@ -56,10 +56,10 @@ def main(argv=None) -> int:
     # the benchmarks load open3d, the peers and the compiled kernels: only once the arguments are
     # known, so that --help and a mistyped option answer at once
     from ..core import warm_up
-    from .pairs_benchmark import run_pairs
+    from .pairs import run_pairs
     from .peers import METHODS
-    from .profile_benchmark import run_profile
-    from .threedmatch_benchmark import run_threedmatch
+    from .profiling import run_profile
+    from .threedmatch import run_threedmatch
 
     warm_up()  # numba's compile or cache load, before any clock starts (as the node does at configure)
     if args.profile:
@@ -98,6 +98,10 @@ def _parser() -> argparse.ArgumentParser:
                         help="the clouds come from level-mounted sensors in z-up frames (ground "
                              "vehicles): the gravity prior is on with each cloud's z axis up (a moved "
                              "source's up turns with it); regor-noprior runs without it")
+    parser.add_argument("--imu-up", type=float, metavar="DEG",
+                        help="with --maps: each query given its up as an IMU would give it, the truth's "
+                             "tilted by DEG in a direction drawn per query, and the map's up (z); "
+                             "regor-noprior runs without it")
     parser.add_argument("--no-viewpoints", action="store_true",
                         help="with pairs or --threedmatch: neither cloud's sensor position is given (a map "
                              "without its trajectory, clouds not in their sensors' frames): free space is not "
@@ -160,9 +164,9 @@ def _methods(requested: str | None, available, parser) -> list[str]:
 def _verify_main(args, argv, parser) -> int:
     """--verify: given poses on the pair folders and the --maps queries, with --set overrides."""
     from ..core import ConfigError
-    from .bench_results import header
-    from .register_cli import parse_overrides
-    from .verify_benchmark import run_verify
+    from ..tools.register_cli import parse_overrides
+    from .results import header
+    from .verify import run_verify
 
     if not args.data and not args.maps:
         parser.error("--verify needs folders of pairs, --maps folders, or both")
@@ -180,20 +184,15 @@ def _verify_main(args, argv, parser) -> int:
 def _map_main(args, argv, parser) -> int:
     """--maps, --map-scaling and --batch: the outdoor preset (every map here is LiDAR) with --set overrides."""
     from ..core import ConfigError, RegorConfig
-    from .batch_benchmark import run_batch_scaling
-    from .bench_results import LEVEL_NOTE, header
-    from .map_benchmark import (
-        LEVEL_MOUNTED,
-        MAP_METHODS,
-        NARROW_NOTE,
-        STRESS_NOTE,
-        TILE_SPACING,
-        run_maps,
-        run_scaling,
-    )
-    from .register_cli import parse_overrides
+    from ..tools.register_cli import parse_overrides
+    from .batch_scaling import run_batch_scaling
+    from .datasets import TILE_SPACING
+    from .maps import IMU_NOTE, LEVEL_MOUNTED, MAP_METHODS, NARROW_NOTE, STRESS_NOTE, run_maps, run_scaling
+    from .results import LEVEL_NOTE, header
 
     try:
+        if args.level and args.imu_up is not None:
+            parser.error("--level and --imu-up both give the up: choose one")
         overrides = {**(LEVEL_MOUNTED if args.level else {}), **parse_overrides(args.set)}
         config = RegorConfig.preset("outdoor").replace(overrides)
     except ConfigError as exc:
@@ -214,8 +213,9 @@ def _map_main(args, argv, parser) -> int:
     elif args.maps:
         report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,
                           header("regor_ros scan-to-map benchmark", argv) + about + LEVEL_NOTE * args.level
-                          + STRESS_NOTE * args.stress + NARROW_NOTE * args.narrow, args.pairs, args.stress,
-                          args.narrow)
+                          + STRESS_NOTE * args.stress + NARROW_NOTE * args.narrow
+                          + (IMU_NOTE.format(args.imu_up) if args.imu_up is not None else ""), args.pairs,
+                          args.stress, args.narrow, args.imu_up)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header(
             "regor_ros map scaling benchmark", argv) + about + " The map is tiled: identical copies "

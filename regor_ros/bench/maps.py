@@ -18,21 +18,17 @@ process of its own. The copies are identical, so a pose is scored against the ne
 """
 from __future__ import annotations
 
-import json
 import multiprocessing
 import resource
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core import (
     ERROR_SIGMAS_99,
     RegistrationError,
     RegorConfig,
-    ScanSequence,
     error_sigmas,
     is_success,
     prepare_cloud,
@@ -42,34 +38,37 @@ from ..core import (
     translation_error,
     warm_up,
 )
-from ..io.map_file import load_map_file, read_trajectory, write_trajectory
-from .bench_results import GATE_COLUMNS, STAGES, gate_columns, selected, write_results
+from ..io.map_file import load_map_file, write_trajectory
+from .datasets import (
+    INPUTS,
+    MAP_UP,
+    NARROW_FIELD_DEG,
+    NARROW_HEADINGS,
+    NARROW_INPUTS,
+    NARROW_MIN_RETURNS,
+    NARROW_STEP_DEG,
+    STRESS_INPUTS,
+    TILE_SPACING,
+    Query,
+    imu_up,
+    load_sequence,
+    one_place,
+    place_of,
+    sequence_folders,
+    tile_poses,
+    tiled,
+)
 from .peers import NO_PRIOR, PLANE, kiss_matcher_pose
+from .results import GATE_COLUMNS, STAGES, gate_columns, selected, write_results
 
 REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
 # --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
 LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
-INPUTS = ("single", "sequence")
-STRESS_INPUTS = ("single", "thinned", "sequence")
-THINNING = 4  # --stress: every 4th point of a scan, a sparse sensor's density (64 beams -> 16)
-SHAKE_SHIFT = 0.03  # [m] a shaken scan's odometry shift (standard deviation per axis)
 MAP_FIELDS = ["map", "method", "query", "input", "set", "pair", "kind", "query_kind", "scans", "map_points",
               "map_keypoints", "success", "accepted", "rotation_error_deg", "translation_error_m", "seconds",
               *(f"seconds_{stage}" for stage in STAGES), "map_seconds", "peak_memory_gb", "error_sigmas",
               *GATE_COLUMNS, "error"]
-TILE_SPACING = 400.0  # metres between copies: beyond a LiDAR's reach
-# --narrow: each query scan as a narrow solid-state sensor at its origin would see it, facing four
-# ways about its z axis: the nearest return in each NARROW_STEP_DEG bin over NARROW_FIELD_DEG square,
-# about a Livox Avia's field and the returns of the Avia maps' decimated scans (bins finer than a
-# degree: the Avia's pattern returns several points within one); a view with fewer than
-# NARROW_MIN_RETURNS faces the sky or the scanner's blind side and is no query. The xseason winter
-# scans seen so are sparse scans from another recording than their map's (the summer's).
-NARROW_FIELD_DEG = 70.0
-NARROW_STEP_DEG = 0.7
-NARROW_HEADINGS = (0, 90, 180, 270)
-NARROW_INPUTS = tuple(f"narrow {heading:03d}" for heading in NARROW_HEADINGS)
-NARROW_MIN_RETURNS = 500
 NARROW_NOTE = (" Narrow (--narrow): each query scan as a narrow solid-state sensor at its origin would see it, "
                f"facing {', '.join(map(str, NARROW_HEADINGS))} deg about its z axis (input `narrow <heading>`): "
                f"the nearest return per {NARROW_STEP_DEG:g} deg of azimuth and elevation over "
@@ -78,6 +77,9 @@ NARROW_NOTE = (" Narrow (--narrow): each query scan as a narrow solid-state sens
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
                f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
                "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
+IMU_NOTE = (" IMU up (--imu-up {:g}): each query is given its up as an IMU would give it, the truth's "
+            "tilted by that many degrees about a horizontal axis drawn per query, and the map's up (z) "
+            "(gravity.source_up, gravity.target_up); regor-noprior runs without it.")
 SCALING_QUERIES = 10  # queries registered at each map size (fewer: the median moved between runs)
 
 
@@ -85,99 +87,10 @@ def _peak_gb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # kB on Linux
 
 
-def load_poses(path: Path) -> dict[int, np.ndarray]:
-    """A TUM file whose first column numbers the scans, as {scan number: 4x4}."""
-    stamps, poses = read_trajectory(path)
-    return {int(k): T for k, T in zip(stamps, poses, strict=True)}
-
-
-@dataclass
-class Query:
-    sequence: str
-    id: str
-    kind: str                 # scan, or submap (scans merged around one)
-    scan: np.ndarray
-    truth: np.ndarray         # T_map_scan
-    history: ScanSequence | None  # the scans received up to it with odometry; None for a submap
-
-    def cloud(self, which: str):
-        """The input ``which`` (INPUTS, STRESS_INPUTS, NARROW_INPUTS) of this query; None when it has none."""
-        if which.startswith("narrow"):
-            view = narrow_view(self.scan, float(which.split()[1]))
-            return view if len(view) >= NARROW_MIN_RETURNS else None
-        return {"single": self.scan, "thinned": self.scan[::THINNING], "sequence": self.history}[which]
-
-
-def narrow_view(scan: np.ndarray, heading_deg: float) -> np.ndarray:
-    """The points of ``scan`` (in its sensor's frame) a narrow sensor at the origin facing ``heading_deg``
-    about z would return: the nearest in each NARROW_STEP_DEG bin of azimuth and elevation within
-    NARROW_FIELD_DEG of the heading, in the order a scanning sensor returns them (column by column)."""
-    half = NARROW_FIELD_DEG / 2
-    distance = np.linalg.norm(scan, axis=1)
-    azimuth = (np.degrees(np.arctan2(scan[:, 1], scan[:, 0])) - heading_deg + 180.0) % 360.0 - 180.0
-    elevation = np.degrees(np.arcsin(np.clip(scan[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0)))
-    inside = np.flatnonzero((np.abs(azimuth) < half) & (np.abs(elevation) < half) & (distance > 0))
-    columns = int(np.ceil(NARROW_FIELD_DEG / NARROW_STEP_DEG))
-    bins = (np.floor((azimuth[inside] + half) / NARROW_STEP_DEG).astype(np.int64) * columns
-            + np.floor((elevation[inside] + half) / NARROW_STEP_DEG).astype(np.int64))
-    order = np.lexsort((distance[inside], bins))
-    first = np.r_[True, bins[order][1:] != bins[order][:-1]][:len(order)]
-    return scan[inside[order[first]]]
-
-
-def sequence_folders(folders: list[Path]) -> list[Path]:
-    """The sequence folders (each with queries.json) in each of ``folders``, in name order."""
-    return sorted((p for folder in folders for p in folder.iterdir() if (p / "queries.json").is_file()),
-                  key=lambda p: p.name)
-
-
-def load_sequence(folder: Path):
-    """(map points, map trajectory (K, 4, 4) or None, [Query]) of one sequence folder."""
-    queries = json.loads((folder / "queries.json").read_text())
-    trajectory_file, odometry_file = folder / "map_trajectory.txt", folder / "odometry.txt"
-    trajectory = np.array(list(load_poses(trajectory_file).values())) if trajectory_file.is_file() else None
-    odometry = load_poses(odometry_file) if odometry_file.is_file() else {}
-    out = []
-    for q in queries:
-        history = None
-        if q["kind"] == "scan" and q.get("sequence") and all(k in odometry for k in q["sequence"]):
-            history = ScanSequence([np.load(folder / "scans" / f"{k:06d}.npy") for k in q["sequence"]],
-                                   [odometry[k] for k in q["sequence"]])
-        out.append(Query(folder.name, q["id"], q["kind"], np.load(folder / "queries" / q["id"] / "scan.npy"),
-                         np.loadtxt(folder / "queries" / q["id"] / "gt.txt"), history))
-    return np.load(folder / "map.npy"), trajectory, out
-
-
-def place_of(sequence: str) -> str:
-    """The place a sequence was recorded, for leave-one-place-out calibration: its name without
-    the SLAM system that built the map (``fastlio_avia_hku2`` is ``avia_hku2``, the campus of the
-    pair sets' ``avia_hku*``)."""
-    return sequence.split("_", 1)[1]
-
-
-def one_place(a: str, b: str) -> bool:
-    """Whether two sequences were recorded at one place: one's place is in the other's name
-    (``fastlio_avia_hku2`` and ``avia_hku2_loop``: one walk, one frame). A query of one against the
-    other's map has a true pose there, so it is no cross-map query."""
-    return place_of(a) in b or place_of(b) in a
-
-
 def _score(T: np.ndarray, truths: list[np.ndarray]) -> tuple:
     """(success, rotation error, translation error) against the nearest of the true poses."""
     best = min(truths, key=lambda G: translation_error(T, G))
     return is_success(T, best, "outdoor"), rotation_error_deg(T, best), translation_error(T, best)
-
-
-def shaken(sequence: ScanSequence, degrees: float, rng: np.random.Generator) -> ScanSequence:
-    """The sequence with each older scan's odometry turned by ``degrees`` about a random axis
-    through its sensor and shifted by a few centimetres: a hand-held sensor's deskew and odometry
-    error, which no shared recording has (core/shake.py)."""
-    poses = []
-    for pose in sequence.poses[:-1]:
-        axis = rng.normal(size=3)
-        turn = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
-        poses.append(pose @ to_matrix(turn, rng.normal(0.0, SHAKE_SHIFT, 3)))
-    return ScanSequence(sequence.scans, poses + [sequence.poses[-1]], sequence.viewpoint)
 
 
 def enlarged(cloud: np.ndarray, trajectory: np.ndarray | None, others: list[str]):
@@ -198,7 +111,7 @@ def _run_map(job) -> list[dict]:
     then every other sequence's (cross-map: no true pose), each as each of ``inputs``. Under
     ``stress`` the map is enlarged with the other places' maps instead (``enlarged``), its own
     queries also go in thinned, and there is no cross-map set (the other places are inside the map)."""
-    folder, others, method, config, stress, inputs = job
+    folder, others, method, config, stress, inputs, imu_tilt = job
     warm_up()  # this child's compile or cache load, before any clock starts
     cloud, trajectory, queries = load_sequence(Path(folder))
     if stress:
@@ -226,8 +139,11 @@ def _run_map(job) -> list[dict]:
                        set="same" if same else "cross", scans=len(source.scans) if which == "sequence" else 1,
                        pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
             if regor:
+                given = config
+                if imu_tilt is not None and method != "regor-noprior":
+                    given = with_imu_up(config, query, imu_tilt)
                 try:
-                    result = register(source, prepared, config)
+                    result = register(source, prepared, given)
                 except RegistrationError as exc:   # too few keypoints in a narrow view: no pose, said why
                     rows.append(dict(row, success=False, accepted=False, rotation_error_deg=np.nan,
                                      translation_error_m=np.nan, seconds=np.nan, error=str(exc)[:200]))
@@ -246,6 +162,13 @@ def _run_map(job) -> list[dict]:
     for row in rows:
         row["peak_memory_gb"] = _peak_gb()
     return rows
+
+
+def with_imu_up(config: RegorConfig, query: Query, tilt_deg: float) -> RegorConfig:
+    """``config`` with the query's up as an IMU would give it (imu_up) and the map's up."""
+    up = imu_up(query.truth, MAP_UP, tilt_deg, f"{query.sequence}/{query.id}")
+    return config.replace({"gravity.source_up": " ".join(f"{v:.9f}" for v in up),
+                           "gravity.target_up": " ".join(f"{v:g}" for v in MAP_UP)})
 
 
 def _in_child(function, job):
@@ -326,12 +249,14 @@ def map_report(rows: list[dict], header: str) -> str:
 
 
 def run_maps(folders: list[Path], methods: list[str], config: RegorConfig, out: Path, header: str,
-             name_filter: str | None = None, stress: bool = False, narrow: bool = False) -> str:
+             name_filter: str | None = None, stress: bool = False, narrow: bool = False,
+             imu_tilt: float | None = None) -> str:
     """The map of every sequence under ``folders`` (whose name contains one of the comma-separated
     ``name_filter``) with every method, against its own queries and every other place's (one_place);
     writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
     maps, its queries single, thinned and fused (stress.md, .csv and .png). With ``narrow``: the
-    query scans seen by a narrow sensor (narrow_view; narrow.md, .csv and .png)."""
+    query scans seen by a narrow sensor (narrow_view; narrow.md, .csv and .png). With ``imu_tilt``
+    (degrees): every query given its up as an IMU would (with_imu_up), but to regor-noprior."""
     inputs, name = (STRESS_INPUTS, "stress") if stress else (NARROW_INPUTS, "narrow") if narrow else (INPUTS, "maps")
     sequences = [str(p) for p in sequence_folders(folders)]
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]
@@ -342,7 +267,7 @@ def run_maps(folders: list[Path], methods: list[str], config: RegorConfig, out: 
     for sequence in maps:
         others = [s for s in sequences if not one_place(Path(s).name, Path(sequence).name)]
         for method in methods:
-            new = _in_child(_run_map, (sequence, others, method, config, stress, inputs))
+            new = _in_child(_run_map, (sequence, others, method, config, stress, inputs, imu_tilt))
             rows += new
             own = [r for r in new if r["set"] == "same"]
             print(f"{Path(sequence).name} {method}: {sum(r['success'] for r in own)} of {len(own)} correct, "
@@ -377,22 +302,6 @@ def _plot_maps(rows: list[dict], path: Path) -> None:
 
 
 # --- scaling: one real map tiled ---
-
-def tile_poses(tiles: int) -> list[np.ndarray]:
-    """Where each of ``tiles`` copies of a map goes: on a grid, each turned about the vertical."""
-    side = int(np.ceil(np.sqrt(tiles)))
-    poses = []
-    for i in range(tiles):
-        c, s = np.cos(0.7 * i), np.sin(0.7 * i)
-        poses.append(to_matrix(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]),
-                               np.array([TILE_SPACING * (i % side), TILE_SPACING * (i // side), 0.0])))
-    return poses
-
-
-def tiled(cloud: np.ndarray, tiles: int) -> tuple:
-    """``tiles`` copies of the map placed by tile_poses, and their poses."""
-    poses = tile_poses(tiles)
-    return np.vstack([cloud @ pose[:3, :3].T + pose[:3, 3] for pose in poses]), poses
 
 
 def _cold_start(job) -> dict:

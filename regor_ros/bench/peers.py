@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from ..core import PreparedCloud, RegorConfig, register, to_matrix
+from ..core import PreparedCloud, RegorConfig, Summary, register, to_matrix
 
 
 @dataclass
@@ -24,7 +24,7 @@ class MethodResult:
     final: tuple | None = None           # (source, target) final correspondences
     initial: tuple | None = None         # (source, target) initial correspondences
     accepted: bool | None = None         # the method's own quality verdict, if it has one
-    figures: dict | None = None          # Regor's verdict figures (RegistrationResult.summary())
+    summary: Summary | None = None       # Regor's verdict and figures
 
 
 NO_PRIOR = {"gravity.source_up": "unknown", "gravity.target_up": "unknown"}
@@ -41,7 +41,7 @@ def _regor_variant(overrides: dict) -> Callable:
         return MethodResult(r.transform, r.timings["total"] - r.timings["features"],
                             final=(r.final.source, r.final.target),
                             initial=(r.initial.source, r.initial.target), accepted=r.accepted,
-                            figures=r.summary())
+                            summary=r.summary())
     return run
 
 

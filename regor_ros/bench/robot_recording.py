@@ -19,11 +19,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..core import to_matrix
+from .datasets import MAP_UP
 
 ODOMETRY_ORDERS = ("before", "with", "after")
 SCAN_PERIOD_S = 0.1     # scans' spacing when the sequence gives no stamps (a 10 Hz LiDAR)
 GRAVITY = 9.81
-MAP_UP = np.array([0.0, 0.0, 1.0])   # the map frame's up, as the shared maps are built (gravity-aligned z)
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,12 @@ import os
 import platform
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core import Figures
+
+if TYPE_CHECKING:
+    from ..core import Summary
 
 FIGURE_COLUMNS = [f.name for f in dataclasses.fields(Figures)]
 STAGES = ("matching", "initial", "regeneration", "estimation", "verification")  # of Regor's timings
@@ -29,15 +33,13 @@ UNSEEN_NOTE = (" Viewpoints dropped (--no-viewpoints): neither sensor position i
                "checked and the normals keep the solver's signs.")
 
 
-def gate_columns(figures: dict) -> dict:
+def gate_columns(summary: Summary) -> dict:
     """The verdict, the gate's figures, the stage timings and the registrations run (1 + the
-    acceptance.retries used) of a RegistrationResult.summary(), as CSV columns (what
-    regor-calibrate-gate reads)."""
-    return {**{f"seconds_{stage}": figures["timings"][stage] for stage in STAGES},
-            "reason": figures["reason"], "failed_check": figures["failed_check"], "carried_by": figures["carried_by"],
-            **figures["gate"],
-            "map_seen": figures["visibility"]["map_seen"], "ambiguity": figures["ambiguity"],
-            "candidate_margin": figures["candidate_margin"], "attempts": figures["attempts"]}
+    acceptance.retries used) of a registration, as CSV columns (what regor-calibrate-gate reads)."""
+    return {**{f"seconds_{stage}": summary.timings[stage] for stage in STAGES},
+            "reason": summary.reason, "failed_check": summary.failed_check, "carried_by": summary.carried_by,
+            **summary.figure_columns(), "map_seen": summary.visibility.map_seen, "ambiguity": summary.ambiguity,
+            "candidate_margin": summary.candidate_margin, "attempts": summary.attempts}
 
 
 def selected(name: str, name_filter: str | None) -> bool:

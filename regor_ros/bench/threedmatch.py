@@ -14,73 +14,20 @@ the same lists under other seeds show how far a figure moves by chance alone.
 """
 from __future__ import annotations
 
-import json
 import time
 from collections import defaultdict
-from pathlib import Path
 
 import numpy as np
 
-from ..core import GROSS_THRESHOLDS, ORIGIN, ConfigError, RegorConfig, is_gross
-from .bench_results import UNSEEN_NOTE, header, place, selected, write_results
-from .pairs_benchmark import CSV_FIELDS, Pair, evaluate_pair
+from ..core import GROSS_THRESHOLDS, ConfigError, RegorConfig, is_gross
+from ..tools.register_cli import parse_overrides
+from .datasets import Fragments, as_pair, load_list
+from .pairs import CSV_FIELDS, evaluate_pair
 from .peers import DESCRIPTIONS
-from .register_cli import parse_overrides
+from .results import UNSEEN_NOTE, header, place, write_results
 
 LISTS = ("3DMatch", "3DLoMatch")
-SAMPLE_SEED = 600                # fixes --sample's draw
-SHORT_NAMES = {  # scene folder -> the place name the other indoor sets use (bench_results.place)
-    "7-scenes-redkitchen": "redkitchen", "sun3d-home_at-home_at_scan1_2013_jan_1": "home_at",
-    "sun3d-hotel_uc-scan3": "hotel_uc", "sun3d-hotel_umd-maryland_hotel3": "hotel_umd3",
-    "sun3d-mit_76_studyroom-76-1studyroom2": "studyroom", "sun3d-home_md-home_md_scan9_2012_sep_30": "home_md",
-    "sun3d-mit_lab_hj-lab_hj_tea_nov_2_2012_scan1_erika": "lab_hj",
-}
 THREEDMATCH_FIELDS = ["bench", *CSV_FIELDS]
-
-
-def pair_name(entry: dict) -> str:
-    """``3dmatch_<place>_<source>_<target>``, as the other indoor sets name their pairs."""
-    scene = SHORT_NAMES.get(entry["scene"], entry["scene"].replace("_", "-"))
-    return f"3dmatch_{scene}_{entry['j']}_{entry['i']}"
-
-
-def load_list(folder: Path, sample: int | None, name_filter: str | None) -> list[dict]:
-    """The entries of ``pairs.json`` selected by ``--pairs`` (names) and ``--sample`` (a seeded draw,
-    in list order), each with its pair name."""
-    entries = json.loads((folder / "pairs.json").read_text())
-    for index, entry in enumerate(entries):
-        missing = {"bench", "scene", "i", "j", "T"} - set(entry)
-        if missing:
-            raise ValueError(f"{folder / 'pairs.json'}: entry {index} lacks {', '.join(sorted(missing))}")
-        entry["index"], entry["name"] = index, pair_name(entry)
-    entries = [e for e in entries if selected(e["name"], name_filter)]
-    if sample is not None and sample < len(entries):
-        rng = np.random.default_rng(SAMPLE_SEED)
-        entries = [entries[i] for i in np.sort(rng.choice(len(entries), sample, replace=False))]
-    return entries
-
-
-class Fragments:
-    """Fragments loaded once each (a fragment is in many pairs)."""
-
-    def __init__(self, folder: Path):
-        self.folder = folder
-        self.loaded: dict = {}
-
-    def __call__(self, scene: str, k: int) -> np.ndarray:
-        key = (scene, k)
-        if key not in self.loaded:
-            path = self.folder / scene / f"{k}.npy"
-            if not path.is_file():
-                raise FileNotFoundError(f"{path}: fragment {k} of {scene} is listed in pairs.json but missing")
-            self.loaded[key] = np.load(path)
-        return self.loaded[key]
-
-
-def as_pair(entry: dict, fragments: Fragments) -> Pair:
-    return Pair(entry["index"], entry["name"], "indoor", fragments(entry["scene"], entry["j"]),
-                fragments(entry["scene"], entry["i"]), np.asarray(entry["T"], dtype=np.float64),
-                np.asarray(ORIGIN), np.asarray(ORIGIN))
 
 
 def entry_rows(entry: dict, fragments: Fragments, methods: list[str], config: RegorConfig,
