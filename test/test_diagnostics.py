@@ -8,8 +8,8 @@ from regor_ros.core import Figures, Summary
 from regor_ros.core.gate.visibility import VisibilityFigures
 from regor_ros.ros.diagnostics import Health, diagnostic_status, seconds_since_process_start
 
-SUMMARY = Summary(accepted=False, reason="only 12 feature matches agree with the pose", failed_check="min_feature_inliers",
-                  carried_by="", singled_out=False, ambiguity=None,
+SUMMARY = Summary(accepted=False, reason="only 12 feature matches agree with the pose",
+                  failed_check="min_feature_inliers", carried_by="", singled_out=False, ambiguity=None,
                   figures=Figures(num_inliers=300, fitness=0.2, surface_agreement=1.0, log10_false_alarms=-1.0,
                                   independent_agreeing=10, feature_inliers=12, free_space_source=0.01,
                                   opposite_sides=0.0),
