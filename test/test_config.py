@@ -17,6 +17,51 @@ def test_outdoor_preset_uses_the_papers_kitti_settings():
     assert cfg.estimation.inlier_threshold == 1.2
 
 
+LENGTHS = ("features.voxel_size", "features.normal_radius", "features.fpfh_radius", "initial.inlier_threshold",
+           "initial.compatibility_threshold", "initial.nms_radius", "initial.fs_tcd_threshold",
+           "initial.refine_threshold", "regeneration.consistency_threshold", "regeneration.global_threshold",
+           "estimation.inlier_threshold", "acceptance.free_space_margin")
+# every preset's lengths in metres as they were set in metres, before they were set in voxels
+IN_METRES = {"indoor": (0.05, 0.1, 0.25, 0.1, 0.1, 0.0, 0.05, 0.1, 0.1, 0.1, 0.1, 0.15),
+             "outdoor": (0.3, 0.9, 1.5, 0.6, 0.1, 0.0, 0.1, 1.2, 0.1, 0.1, 1.2, 0.9),
+             "object": (0.003, 0.006, 0.015, 0.006, 0.006, 0.0, 0.003, 0.006, 0.006, 0.006, 0.006, 0.009)}
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_a_preset_set_in_voxels_gives_its_lengths_in_metres_to_the_bit(name):
+    config = RegorConfig.preset(name)
+    lengths = {"features.voxel_size": config.features.voxel_size, **config.lengths()}
+    assert tuple(lengths[n] for n in LENGTHS) == IN_METRES[name]
+    # and as its generated parameter file gives them (every digit written)
+    from regor_ros.tools.write_presets import preset_yaml
+    yaml = pytest.importorskip("yaml")
+    written = yaml.safe_load(preset_yaml(name))["/**"]["ros__parameters"]
+    flat = {f"{section}.{leaf}": value for section, values in written.items() if isinstance(values, dict)
+            for leaf, value in values.items()}
+    reread = RegorConfig.preset(name).replace({k: v for k, v in flat.items() if k in config.to_flat()})
+    assert reread.lengths() == config.lengths()
+
+
+def test_every_length_follows_the_voxel():
+    """One knob for a new sensor: the voxel; the lengths that are no sensor's (a robot's height band,
+    the verification's tolerance) stay."""
+    indoor = RegorConfig.preset("indoor")
+    coarser = indoor.replace({"voxel_size": 0.1})
+    assert all(coarser.lengths()[n] == 2 * v for n, v in indoor.lengths().items())
+    assert coarser.verification.max_correction == indoor.verification.max_correction
+    assert coarser.gravity.height_tolerance == indoor.gravity.height_tolerance
+
+
+def test_a_length_given_in_metres_sets_its_multiple_at_the_voxel_the_copy_ends_with():
+    outdoor = RegorConfig.preset("outdoor")
+    wider = outdoor.replace({"features.normal_radius": 1.2})
+    assert wider.features.normal_radius_voxels == 4.0 and wider.features.normal_radius == 1.2
+    finer = outdoor.replace({"features.normal_radius": 0.5, "voxel_size": 0.2})
+    assert finer.features.normal_radius == 0.5 and finer.features.fpfh_radius == 1.0
+    with pytest.raises(ConfigError, match="features.normal_radius_voxels"):
+        outdoor.replace({"features.normal_radius": 0.1})   # under one voxel
+
+
 def test_unknown_preset_names_the_choices():
     with pytest.raises(ConfigError, match="indoor, outdoor, object"):
         RegorConfig.preset("underwater")

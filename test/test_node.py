@@ -350,7 +350,8 @@ def test_help_prints_the_usage_and_every_parameter_without_starting_a_node(insta
 
 
 def test_a_misspelt_parameter_is_named_with_what_was_meant(install):
-    """rclpy ignores an override the node does not declare: the node says so, with the closest name."""
+    """rclpy ignores an override the node does not declare: the node says so, with the closest name
+    (for a length given in metres, the multiple of the voxel to give)."""
     node = NodeProcess(install, "-p", "voxel_sise:=0.3", "-p", "features.normal_radius:=0.2", "-p", "autostart:=false")
     try:
         said = "parameter 'voxel_sise' is not one of register_node's: ignored; did you mean 'features.voxel_size'?"
@@ -358,7 +359,9 @@ def test_a_misspelt_parameter_is_named_with_what_was_meant(install):
         while said not in node.output() and time.monotonic() < deadline and node.proc.poll() is None:
             time.sleep(0.1)
         assert said in node.output(), node.output()
-        assert "normal_radius' is not one" not in node.output()
+        # a length in metres, as it was set before it was set in voxels: the value to give instead
+        assert "'features.normal_radius' is set in voxels now: ignored; give 'features.normal_radius_voxels:=4'" \
+            in node.output(), node.output()
     finally:
         node.stop()
 

@@ -3,6 +3,13 @@
 This module is the single source of truth: the ROS node declares its parameters from it, the
 command line's ``--set`` overrides go through it, and the YAML presets in ``config/`` are generated
 from it. Each field carries a description and a valid range in its metadata.
+
+One scale: the lengths that follow the sensor's resolution (radii, thresholds, the free-space
+margin) are set in voxels (``<name>_voxels``, multiples of ``features.voxel_size``, as KISS-Matcher
+sets its radii), so a preset is a voxel and a handful of choices, and one knob fits a new sensor.
+The code reads each in metres under its own name (``<name>``), derived and never set: a derived
+length is rounded to the picometre, so a multiple written as a decimal gives the decimal it means
+(3 x 0.3 m is 0.9 m, not the float below it).
 """
 from __future__ import annotations
 
@@ -26,15 +33,27 @@ def param(default: Any, description: str, low: float | None = None,
     return field(default=default, metadata=meta)
 
 
+LENGTH_DIGITS = 12   # a derived length is rounded to the picometre (the module's docstring)
+
+
+def length(metres: float) -> Any:
+    """A length in metres derived from the field ``<name>_voxels`` before it and the voxel size;
+    no parameter (RegorConfig sets it). ``metres``: its value at the default voxel."""
+    return field(default=metres, metadata={"derived": True})
+
+
 @dataclass
 class FeatureConfig:
     """Downsampling, normals and FPFH descriptors (open3d)."""
 
-    voxel_size: float = param(0.05, "voxel edge for downsampling; every downsampled point is a keypoint "
-                                    "[m]", 1e-4, 100.0)
-    normal_radius: float = param(0.10, "search radius for normal estimation [m]", 1e-4, 1000.0)
+    voxel_size: float = param(0.05, "voxel edge for downsampling; every downsampled point is a keypoint. The "
+                                    "one scale: every length set in voxels (the *_voxels parameters) is a "
+                                    "multiple of it [m]", 1e-4, 100.0)
+    normal_radius_voxels: float = param(2.0, "search radius for normal estimation, in voxels", 1.0, 1000.0)
+    normal_radius: float = length(0.10)
     normal_max_nn: int = param(30, "max neighbours for normal estimation", 3, 1000)
-    fpfh_radius: float = param(0.25, "search radius of the FPFH descriptor [m]", 1e-4, 1000.0)
+    fpfh_radius_voxels: float = param(5.0, "search radius of the FPFH descriptor, in voxels", 1.0, 1000.0)
+    fpfh_radius: float = length(0.25)
     fpfh_max_nn: int = param(100, "max neighbours for the FPFH descriptor", 5, 1000)
     remove_ground: bool = param(False, "drop the largest plane (a LiDAR scan's ground) before keypoints when "
                                  "both clouds are scans seen from known sensors: its rings make unrelated scans "
@@ -63,12 +82,15 @@ class FeatureConfig:
 class InitialConfig:
     """SC2-PCR++ initial stage: seeds, consensus sets, hypotheses, FS-TCD selection."""
 
-    inlier_threshold: float = param(0.10, "residual below which a correspondence is an inlier of a hypothesis (tau) "
-                                          "[m]", 1e-5, 100.0)
-    compatibility_threshold: float = param(0.10, "length difference scale of pairwise compatibility (d_thre) "
-                                                 "[m]", 1e-5, 100.0)
-    nms_radius: float = param(0.0, "radius of non-maximum suppression among seeds, in the source cloud (authors: "
-                                   "0.1 indoor, 0.3 outdoor) [m]", 0.0, 100.0)
+    inlier_threshold_voxels: float = param(2.0, "residual below which a correspondence is an inlier of a "
+                                                "hypothesis (tau), in voxels", 1e-3, 1000.0)
+    inlier_threshold: float = length(0.10)
+    compatibility_threshold_voxels: float = param(2.0, "length difference scale of pairwise compatibility (d_thre), "
+                                                       "in voxels", 1e-3, 1000.0)
+    compatibility_threshold: float = length(0.10)
+    nms_radius_voxels: float = param(0.0, "radius of non-maximum suppression among seeds, in the source cloud, in "
+                                          "voxels (authors: 2 indoor, 1 outdoor)", 0.0, 1000.0)
+    nms_radius: float = length(0.0)
     seed_ratio: float = param(0.5, "fraction of correspondences used as seeds, by spectral confidence (authors: "
                                    "0.2)", 0.001, 1.0)
     k1: int = param(20, "size of the first-stage consensus set of each seed", 4, 1000)
@@ -84,9 +106,12 @@ class InitialConfig:
                                        "in the "
                           "consensus subset (inliers, authors) or with the most source keypoints landing on one of "
                           "their K feature candidates (candidates, deviation: finds correct poses at low overlap)")
-    fs_tcd_threshold: float = param(0.05, "length difference below which two verified matches agree in FS-TCD "
-                                          "[m]", 1e-5, 100.0)
-    refine_threshold: float = param(0.10, "inlier threshold of the post-refinement (tau_r) [m]", 1e-5, 100.0)
+    fs_tcd_threshold_voxels: float = param(1.0, "length difference below which two verified matches agree in "
+                                                "FS-TCD, in voxels", 1e-3, 1000.0)
+    fs_tcd_threshold: float = length(0.05)
+    refine_threshold_voxels: float = param(2.0, "inlier threshold of the post-refinement (tau_r), in voxels",
+                                           1e-3, 1000.0)
+    refine_threshold: float = length(0.10)
     dedupe_hypotheses: bool = param(True, "skip FS-TCD for hypotheses within 1 deg and 0.2 tau of a kept one "
                                           "(speed; deviation)")
     fs_tcd_points: int = param(2500, "random subset of source keypoints verified by FS-TCD (deviation, for large "
@@ -107,14 +132,16 @@ class RegenerationConfig:
     stage_neighbors: list[int] = param([100, 20], "k nearest neighbours forming each local region, one entry per "
                                                   "stage", 1, 1000)
     stage_seeds: list[int] = param([100, 500], "seed correspondences drawn per stage, one entry per stage", 1, 100000)
-    consistency_threshold: float = param(0.10, "sigma of the centre-aware three-point consistency; pairs agree "
-                                               "within sigma/2 [m]", 1e-5, 100.0)
+    consistency_threshold_voxels: float = param(2.0, "sigma of the centre-aware three-point consistency; pairs "
+                                                     "agree within sigma/2; in voxels", 1e-3, 1000.0)
+    consistency_threshold: float = length(0.10)
     gmm_k: int = param(3, "neighbours of generalized mutual matching", 1, 50)
     point_support_ratio: float = param(0.3, "a pair is kept if consistent with this fraction of its region", 0.0, 1.0)
     region_keep_ratio: float = param(0.5, "a region is dropped if it keeps less than this fraction of its "
                                           "pairs", 0.0, 1.0)
-    global_threshold: float = param(0.10, "length difference threshold of the global second-order filter "
-                                          "[m]", 1e-5, 100.0)
+    global_threshold_voxels: float = param(2.0, "length difference threshold of the global second-order filter, "
+                                                "in voxels", 1e-3, 1000.0)
+    global_threshold: float = length(0.10)
     global_cap: int = param(1500, "random subset size for the global second-order filter; 0 = all "
                                   "(deviation)", 0, 100000)
     presample: int = param(0, "draw this many initial inliers with replacement before stage 1 (authors' 3DLoMatch: "
@@ -128,8 +155,9 @@ class EstimationConfig:
     """Final pose: Kabsch, then Cauchy-weighted point-level refinement over all keypoints, then
     point-to-plane refinement."""
 
-    inlier_threshold: float = param(0.10, "nearest-neighbour distance below which a keypoint is a final inlier "
-                                          "(tau_e) [m]", 1e-5, 100.0)
+    inlier_threshold_voxels: float = param(2.0, "nearest-neighbour distance below which a keypoint is a final "
+                                                "inlier (tau_e), in voxels", 1e-3, 1000.0)
+    inlier_threshold: float = length(0.10)
     max_iterations: int = param(20, "iterations of the point-level refinement", 0, 1000)
     compare_initial_pose: bool = param(True, "also refine the initial stage's pose and keep whichever ends "
                                         "with more point-level inliers (guards against regeneration drift; deviation)")
@@ -185,10 +213,10 @@ class AcceptanceConfig:
                                                    "both (a box room's quarter turn); needs "
                                                    "both viewpoints (1 = off; calibrated: regor-calibrate-gate)",
                                              0.0, 1.0)
-    free_space_margin: float = param(0.15, "a keypoint is in seen free space only when nearer than the seen surface "
-                                           "by more "
-                                      "than this plus free_space_margin_ratio x its range (presets: 3 voxels) "
-                                      "[m]", 0.0, 100.0)
+    free_space_margin_voxels: float = param(3.0, "a keypoint is in seen free space only when nearer than the seen "
+                                                 "surface by more than this plus free_space_margin_ratio x its "
+                                                 "range; in voxels", 0.0, 1000.0)
+    free_space_margin: float = length(0.15)
     free_space_margin_ratio: float = param(0.02, "range-proportional part of the free-space margin (depth noise grows "
                                             "with range)", 0.0, 1.0)
     free_space_sigmas: float = param(3.0, "the free-space margin also grows by this many standard deviations of "
@@ -290,6 +318,18 @@ class RegorConfig:
     verification: VerificationConfig = field(default_factory=VerificationConfig)
     seed: int = param(51, "seed of the random generator; the same seed gives the same pose", 0, 2**31 - 1)
 
+    def __post_init__(self):
+        self.derive_lengths()
+
+    def derive_lengths(self) -> RegorConfig:
+        """Set every length in metres from its multiple of the voxel (the module's docstring)."""
+        voxel = self.features.voxel_size
+        for section in _sections(self).values():
+            for f in dataclasses.fields(section):
+                if f.metadata.get("derived"):
+                    setattr(section, f.name, round(getattr(section, f.name + "_voxels") * voxel, LENGTH_DIGITS))
+        return self
+
     @classmethod
     def preset(cls, name: str) -> RegorConfig:
         """indoor: the paper's 3DMatch settings; outdoor: its KITTI settings; object: indoor scaled
@@ -298,30 +338,26 @@ class RegorConfig:
         if name == "indoor":
             return cls()
         if name == "outdoor":
+            # the paper's KITTI settings: wider normals and thresholds, but the length tests of
+            # matches (compatibility, FS-TCD, consistency, the global filter) kept at 0.1 m
             return cls(
-                features=FeatureConfig(voxel_size=0.30, normal_radius=0.90, fpfh_radius=1.5,
+                features=FeatureConfig(voxel_size=0.30, normal_radius_voxels=3.0,
                                        remove_ground=True, normals_toward_sensors=True),
-                initial=InitialConfig(inlier_threshold=0.6, compatibility_threshold=0.1,
-                                      k1=40, k2=30, fs_tcd_threshold=0.1,
-                                      refine_threshold=1.2, subset="best"),
-                estimation=EstimationConfig(inlier_threshold=1.2, settle_rounds=3, visible_candidates=8),
+                initial=InitialConfig(compatibility_threshold_voxels=1 / 3, k1=40, k2=30,
+                                      fs_tcd_threshold_voxels=1 / 3, refine_threshold_voxels=4.0, subset="best"),
+                regeneration=RegenerationConfig(consistency_threshold_voxels=1 / 3, global_threshold_voxels=1 / 3),
+                estimation=EstimationConfig(inlier_threshold_voxels=4.0, settle_rounds=3, visible_candidates=8),
                 acceptance=AcceptanceConfig(min_feature_inliers=5, min_feature_inliers_partial=60,
-                                            max_free_space_violation=0.03,
-                                            free_space_margin=0.9),
+                                            max_free_space_violation=0.03),
                 verification=VerificationConfig(max_correction=0.6, max_correction_deg=5.0),
             )
         if name == "object":
-            s = 0.06  # object scale relative to indoor
+            s = 0.06  # object scale relative to indoor: the indoor voxel, so every length, scaled
             return cls(
-                features=FeatureConfig(voxel_size=0.05 * s, normal_radius=0.10 * s, fpfh_radius=0.25 * s,
-                                       normals_toward_sensors=False),
-                initial=InitialConfig(inlier_threshold=0.10 * s, compatibility_threshold=0.10 * s,
-                                      fs_tcd_threshold=0.05 * s,
-                                      refine_threshold=0.10 * s),
-                regeneration=RegenerationConfig(consistency_threshold=0.10 * s, global_threshold=0.10 * s),
-                estimation=EstimationConfig(inlier_threshold=0.10 * s, visible_candidates=0),
+                features=FeatureConfig(voxel_size=0.05 * s, normals_toward_sensors=False),
+                estimation=EstimationConfig(visible_candidates=0),
                 acceptance=AcceptanceConfig(min_feature_inliers=50, min_feature_inliers_partial=95,
-                                            max_free_space_violation=0.06, free_space_margin=0.15 * s),
+                                            max_free_space_violation=0.06),
                 verification=VerificationConfig(max_correction=0.3 * s),
             )
         raise ConfigError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
@@ -329,30 +365,45 @@ class RegorConfig:
     # --- flat view: "section.field" names, used by ROS parameters, the CLI and YAML files ---
 
     def parameters(self) -> Iterator[tuple[str, Any, dataclasses.Field]]:
-        """Yield (dotted name, current value, dataclass field) for every leaf."""
+        """Yield (dotted name, current value, dataclass field) for every leaf that is set (the
+        lengths in metres are derived: ``lengths``)."""
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if dataclasses.is_dataclass(value):
                 for sub in dataclasses.fields(value):
-                    yield f"{f.name}.{sub.name}", getattr(value, sub.name), sub
+                    if not sub.metadata.get("derived"):
+                        yield f"{f.name}.{sub.name}", getattr(value, sub.name), sub
             else:
                 yield f.name, value, f
+
+    def lengths(self) -> dict[str, float]:
+        """Every derived length in metres by its dotted name (``features.normal_radius``)."""
+        return {f"{name}.{f.name}": getattr(section, f.name) for name, section in _sections(self).items()
+                for f in dataclasses.fields(section) if f.metadata.get("derived")}
 
     def to_flat(self) -> dict[str, Any]:
         """Every setting by its dotted name (the ROS parameters' names)."""
         return {name: value for name, value, _ in self.parameters()}
 
     def replace(self, overrides: dict[str, Any]) -> RegorConfig:
-        """A validated copy with ``{"section.field" or unique "field": value}`` applied."""
-        flat = self.to_flat()
+        """A validated copy with ``{"section.field" or unique "field": value}`` applied. A length
+        given in metres by its derived name (``features.normal_radius``) sets its multiple of the
+        voxel, at the voxel the copy ends with."""
+        flat, lengths = self.to_flat(), self.lengths()
+        in_metres = {}
         for key, value in overrides.items():
-            name = resolve_name(key, flat)
-            flat[name] = coerce(name, value, flat[name])
+            name = resolve_name(key, {**flat, **lengths})
+            if name in lengths:
+                in_metres[name] = coerce(name, value, lengths[name])
+            else:
+                flat[name] = coerce(name, value, flat[name])
+        for name, metres in in_metres.items():
+            flat[name + "_voxels"] = metres / flat["features.voxel_size"]
         new = RegorConfig()
         for name, value in flat.items():
             section, _, leaf = name.rpartition(".")
             setattr(getattr(new, section) if section else new, leaf, value)
-        new.validate()
+        new.derive_lengths().validate()
         return new
 
     def validate(self) -> RegorConfig:
@@ -373,8 +424,6 @@ class RegorConfig:
                               f"one entry per stage (got {len(regen.stage_neighbors)} and {len(regen.stage_seeds)})")
         if self.initial.k2 > self.initial.k1:
             raise ConfigError(f"initial.k2={self.initial.k2} must not exceed initial.k1={self.initial.k1}")
-        if self.features.normal_radius < self.features.voxel_size:
-            raise ConfigError("features.normal_radius must be at least features.voxel_size")
         acceptance = self.acceptance
         if acceptance.min_feature_inliers_partial < acceptance.min_feature_inliers:
             raise ConfigError(f"acceptance.min_feature_inliers_partial={acceptance.min_feature_inliers_partial} must "
@@ -385,9 +434,13 @@ class RegorConfig:
                 parse_up(getattr(self.gravity, name))
             except ConfigError as error:
                 raise ConfigError(f"gravity.{name}: {error}") from None
-        if self.features.fpfh_radius < self.features.voxel_size:
-            raise ConfigError("features.fpfh_radius must be at least features.voxel_size")
         return self
+
+
+def _sections(config: RegorConfig) -> dict[str, Any]:
+    """Each section of ``config`` by its name."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if dataclasses.is_dataclass(getattr(config, f.name))}
 
 
 def resolve_name(key: str, flat: dict[str, Any]) -> str:

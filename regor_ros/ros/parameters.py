@@ -218,12 +218,24 @@ def unknown_overrides(node) -> list[str]:
     declared = list(node.get_parameters_by_prefix("")) if names else []
     leaves = {name.rsplit(".", 1)[-1]: name for name in declared}
     warnings = []
+    in_metres = RegorConfig().lengths()
     for name in sorted(names):
+        if name in in_metres:   # set in voxels since 2026-12: say the value to give
+            warnings.append(_in_voxels(name, given[name].value, node.get_parameter("features.voxel_size").value))
+            continue
         close = difflib.get_close_matches(name, declared, n=1) or \
             [leaves[m] for m in difflib.get_close_matches(name.rsplit(".", 1)[-1], list(leaves), n=1)]
         hint = f"; did you mean '{close[0]}'?" if close else ""
         warnings.append(f"parameter '{name}' is not one of register_node's: ignored{hint}")
     return warnings
+
+
+def _in_voxels(name: str, metres, voxel: float) -> str:
+    """The warning for a length given in metres by the name the code reads it under."""
+    if not isinstance(metres, (int, float)) or isinstance(metres, bool):
+        return f"parameter '{name}' is set in voxels now, as '{name}_voxels': ignored"
+    return (f"parameter '{name}' is set in voxels now: ignored; give '{name}_voxels:={metres / voxel:g}' "
+            f"({metres:g} m at features.voxel_size {voxel:g} m)")
 
 
 def make_settings(values: dict) -> NodeSettings:

@@ -21,7 +21,7 @@ def _yaml_value(value) -> str:
     if isinstance(value, list):
         return "[" + ", ".join(str(v) for v in value) + "]"
     if isinstance(value, float):
-        return repr(round(value, 9))
+        return repr(value)   # every digit: a multiple such as 1/3 of a voxel reads back to the bit
     return str(value)
 
 
