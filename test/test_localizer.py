@@ -148,3 +148,12 @@ def test_a_scan_waits_for_the_odometry_that_places_it_and_no_longer_than_odometr
                                                        "no odometry at or after the scan's stamp": 1}
     assert late.status["registrations_fused"] == 1 and late.status["registrations_alone"] == 2
     assert late.result.accepted
+
+
+def test_an_imu_without_the_maps_up_is_said_to_leave_the_prior_off():
+    from regor_ros.ros.parameters import unused_settings
+    with_imu = make_settings({"imu_topic": "/imu/data", "mode": "map"})
+    said = unused_settings(RegorConfig.preset("outdoor"), with_imu)
+    assert len(said) == 1 and "gravity.target_up is unknown" in said[0] and "'0 0 1'" in said[0]
+    assert unused_settings(RegorConfig.preset("outdoor").replace({"gravity.target_up": "0 0 1"}), with_imu) == []
+    assert unused_settings(RegorConfig.preset("outdoor"), make_settings({})) == []

@@ -20,7 +20,7 @@ from ..core import ConfigError, RegistrationError
 from .diagnostics import diagnostic_array, seconds_since_process_start
 from .localizer import Localizer
 from .outputs import Outputs
-from .parameters import apply_changes, declare_parameters, unknown_overrides
+from .parameters import apply_changes, declare_parameters, unknown_overrides, unused_settings
 from .subscriptions import Subscriptions
 
 STOP_WAIT_S = 0.3  # how long a stop waits for the worker (a registration or map preparation under way is abandoned)
@@ -30,7 +30,7 @@ class RegisterNode(LifecycleNode):
     def __init__(self):
         super().__init__("register_node")
         config, settings = declare_parameters(self)
-        for warning in unknown_overrides(self):
+        for warning in unknown_overrides(self) + unused_settings(config, settings):
             self.get_logger().warning(warning)
         self.outputs = Outputs(self, lambda: self.localizer.shared.settings)
         up = self.outputs.while_up

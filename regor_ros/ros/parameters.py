@@ -230,6 +230,18 @@ def unknown_overrides(node) -> list[str]:
     return warnings
 
 
+def unused_settings(config: RegorConfig, settings: NodeSettings) -> list[str]:
+    """A warning for each setting given that the others leave without effect, so the user is not
+    left believing it works."""
+    warnings = []
+    if settings.imu_topic and config.gravity.target_up.strip().lower() == "unknown":
+        warnings.append(f"imu_topic '{settings.imu_topic}' gives the scan's up, but gravity.target_up is unknown: "
+                        "the gravity prior needs both and stays off; give the map's up in its frame (a "
+                        "gravity-aligned map, as LIO-SAM builds: '0 0 1'; FAST-LIO's map is its IMU's first "
+                        "frame, level only if it started level)")
+    return warnings
+
+
 def _in_voxels(name: str, metres, voxel: float) -> str:
     """The warning for a length given in metres by the name the code reads it under."""
     if not isinstance(metres, (int, float)) or isinstance(metres, bool):
