@@ -1,5 +1,7 @@
 """The watchdog: a localization stack's pose checked against the scans, without ROS and over DDS
 with the installed node (a correct stack raises no alarm; a kidnapped robot is found again)."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from conftest import DATA, require_shared_data
@@ -27,7 +29,8 @@ class Verified:
         self.correction_m, self.correction_deg = 0.1, 0.5
 
     def summary(self):
-        return {"accepted": self.accepted}
+        accepted = self.accepted
+        return SimpleNamespace(as_json=lambda: {"accepted": accepted})
 
 
 def test_a_pose_that_cannot_be_checked_says_why():
@@ -54,6 +57,7 @@ def test_failures_in_a_row_make_the_robot_lost_and_a_verified_check_clears_them(
     assert watchdog.failures == 0
     check = watchdog.judged(Verified(True), 2.0, 2.0, 3)
     assert check.as_dict()["correction_m"] == 0.1   # a verified pose's correction is reported
+    assert check.as_dict()["verification"] == {"accepted": True}   # with verify()'s summary
 
 
 @pytest.fixture
