@@ -34,7 +34,7 @@ def test_a_shaky_sequences_right_pose_passes_free_space_and_a_turned_one_does_no
     assert fused.shake_bins >= 1
     limit = OUTDOOR.acceptance.max_free_space_violation
     assert worst_at(query.truth, fused, target) <= limit
-    assert register(sequence, target, OUTDOOR).visibility.as_dict()["shake_bins"] == fused.shake_bins
+    assert register(sequence, target, OUTDOOR).visibility.shake_bins == fused.shake_bins
     as_if_steady = prepare(sequence.fused(), OUTDOOR.features, "scans")
     assert as_if_steady.shake_bins == 0 and worst_at(query.truth, as_if_steady, target) > limit
     turned = query.truth @ to_matrix(Rotation.from_euler("z", 90.0, degrees=True).as_matrix(), np.zeros(3))
