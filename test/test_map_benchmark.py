@@ -3,10 +3,11 @@ import csv
 import json
 
 import numpy as np
+import pytest
 from conftest import DATA, require_shared_data
 
 from regor_ros.bench.cli import main
-from regor_ros.bench.datasets import NARROW_STEP_DEG, narrow_view, tiled
+from regor_ros.bench.datasets import NARROW_STEP_DEG, imu_up, narrow_view, tiled
 
 SEQUENCE = "avia_hku2_loop"   # the loop's way back (revisit/): queries metres from the map's poses
 QUERIES = ["scan_000180", "scan_000200"]  # one Regor registers, one it does not alone (measured)
@@ -159,3 +160,13 @@ def test_verify_mode_checks_right_and_wrong_poses_against_the_peers_checks(tmp_p
     assert all(0 <= float(r["icp_fitness"]) <= 1 for r in rows)
     report = (out / "verify.md").read_text()
     assert "| outdoor | ICP fitness |" in report and "| indoor | verify() |" in report
+
+
+def test_an_imus_up_is_the_truths_tilted_by_the_stated_angle_the_same_for_a_query_every_run():
+    from regor_ros.core import random_rigid_motion
+    truth, map_up = random_rigid_motion(7), np.array([0.0, 0.0, 1.0])
+    exact = truth[:3, :3].T @ map_up
+    up = imu_up(truth, map_up, 3.0, "loop/scan_000200")
+    assert np.degrees(np.arccos(np.clip(up @ exact, -1.0, 1.0))) == pytest.approx(3.0)
+    assert np.array_equal(up, imu_up(truth, map_up, 3.0, "loop/scan_000200"))
+    assert not np.allclose(up, imu_up(truth, map_up, 3.0, "loop/scan_000201"))
