@@ -101,8 +101,13 @@ class Pair:
         """``config`` with the pair's up directions as its gravity prior, when both are known."""
         if self.src_up is None or self.tgt_up is None:
             return config
-        return config.replace({"gravity.source_up": " ".join(f"{v:.9f}" for v in self.src_up),
-                               "gravity.target_up": " ".join(f"{v:.9f}" for v in self.tgt_up)})
+        return config.replace(gravity_overrides(self.src_up, self.tgt_up))
+
+
+def gravity_overrides(source_up: np.ndarray, target_up: np.ndarray) -> dict[str, str]:
+    """The settings that give the gravity prior these up directions (each in its cloud's frame)."""
+    return {"gravity.source_up": " ".join(f"{v:.9f}" for v in source_up),
+            "gravity.target_up": " ".join(f"{v:.9f}" for v in target_up)}
 
 
 def load_poses(path: Path) -> dict[int, np.ndarray]:

@@ -49,7 +49,7 @@ from .datasets import (
     NARROW_STEP_DEG,
     STRESS_INPUTS,
     TILE_SPACING,
-    Query,
+    gravity_overrides,
     imu_up,
     load_sequence,
     one_place,
@@ -61,7 +61,8 @@ from .datasets import (
 from .peers import NO_PRIOR, PLANE, kiss_matcher_pose
 from .results import GATE_COLUMNS, STAGES, gate_columns, selected, write_results
 
-REGOR_VARIANTS = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}  # method: config overrides
+# method: its config overrides
+REGOR_VARIANTS: dict[str, dict] = {"regor": {}, "regor-noprior": NO_PRIOR, "regor-plane": PLANE}
 MAP_METHODS = (*REGOR_VARIANTS, "kiss-matcher")
 # --level: the gravity prior of a level-mounted sensor in a z-up map (a ground vehicle's)
 LEVEL_MOUNTED = {"gravity.source_up": "0 0 1", "gravity.target_up": "0 0 1"}
@@ -124,7 +125,6 @@ def _run_map(job) -> list[dict]:
     regor = method in REGOR_VARIANTS
     if regor:
         config = config.replace(REGOR_VARIANTS[method])
-    if regor:
         start = time.perf_counter()
         prepared = prepare_cloud(cloud, config, "map", trajectory=trajectory)
         base.update(map_seconds=time.perf_counter() - start, map_keypoints=len(prepared))
@@ -140,8 +140,9 @@ def _run_map(job) -> list[dict]:
                        pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
             if regor:
                 given = config
-                if imu_tilt is not None and method != "regor-noprior":
-                    given = with_imu_up(config, query, imu_tilt)
+                if imu_tilt is not None:   # the variant's own settings last: regor-noprior stays without
+                    up = imu_up(query.truth, MAP_UP, imu_tilt, f"{query.sequence}/{query.id}")
+                    given = config.replace({**gravity_overrides(up, MAP_UP), **REGOR_VARIANTS[method]})
                 try:
                     result = register(source, prepared, given)
                 except RegistrationError as exc:   # too few keypoints in a narrow view: no pose, said why
@@ -162,13 +163,6 @@ def _run_map(job) -> list[dict]:
     for row in rows:
         row["peak_memory_gb"] = _peak_gb()
     return rows
-
-
-def with_imu_up(config: RegorConfig, query: Query, tilt_deg: float) -> RegorConfig:
-    """``config`` with the query's up as an IMU would give it (imu_up) and the map's up."""
-    up = imu_up(query.truth, MAP_UP, tilt_deg, f"{query.sequence}/{query.id}")
-    return config.replace({"gravity.source_up": " ".join(f"{v:.9f}" for v in up),
-                           "gravity.target_up": " ".join(f"{v:g}" for v in MAP_UP)})
 
 
 def _in_child(function, job):
@@ -256,7 +250,7 @@ def run_maps(folders: list[Path], methods: list[str], config: RegorConfig, out: 
     writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
     maps, its queries single, thinned and fused (stress.md, .csv and .png). With ``narrow``: the
     query scans seen by a narrow sensor (narrow_view; narrow.md, .csv and .png). With ``imu_tilt``
-    (degrees): every query given its up as an IMU would (with_imu_up), but to regor-noprior."""
+    (degrees): every query given its up as an IMU would (imu_up), but to regor-noprior."""
     inputs, name = (STRESS_INPUTS, "stress") if stress else (NARROW_INPUTS, "narrow") if narrow else (INPUTS, "maps")
     sequences = [str(p) for p in sequence_folders(folders)]
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]

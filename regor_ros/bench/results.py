@@ -38,7 +38,7 @@ def gate_columns(summary: Summary) -> dict:
     acceptance.retries used) of a registration, as CSV columns (what regor-calibrate-gate reads)."""
     return {**{f"seconds_{stage}": summary.timings[stage] for stage in STAGES},
             "reason": summary.reason, "failed_check": summary.failed_check, "carried_by": summary.carried_by,
-            **summary.figure_columns(), "map_seen": summary.visibility.map_seen, "ambiguity": summary.ambiguity,
+            **summary.figures.columns(), "map_seen": summary.visibility.map_seen, "ambiguity": summary.ambiguity,
             "candidate_margin": summary.candidate_margin, "attempts": summary.attempts}
 
 

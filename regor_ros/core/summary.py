@@ -54,10 +54,6 @@ class Summary:
         return cls(verdict.accepted, verdict.reason, verdict.failed, verdict.carried_by, verdict.singled_out,
                    verdict.ambiguity, figures, visibility, dict(timings), **extra)
 
-    def figure_columns(self) -> dict:
-        """The gate's figures as CSV columns (regor-calibrate-gate reads them back: Figures.from_columns)."""
-        return self.figures.columns()
-
     def as_json(self) -> dict:
         """Plain values for JSON: every figure once, under ``figures`` (the rivals as a list), what
         each side saw under ``visibility``; None for what was not measured."""
