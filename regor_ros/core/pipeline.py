@@ -441,7 +441,8 @@ def _register_once(src_cloud: PreparedCloud, tgt_cloud: PreparedCloud, config: R
     initial_inlier = agreeing(T, init_src, init_tgt, config.initial.inlier_threshold)
     measured = measure(refined, src_cloud, tgt_cloud, (init_src, init_tgt, initial_inlier), covariance=covariance,
                        uncertainty=uncertainty, hypotheses=initial.hypotheses_tried,
-                       places=[pose for pose, _ in initial.candidates], config=config, rules=rules, prior=prior)
+                       places=[pose for pose, _ in initial.candidates], config=config, rules=rules,
+                       refine=lambda pose: refined_from(pose, src_cloud, tgt_cloud, config, prior), prior=prior)
     lap("verification")
     timings["total"] = time.perf_counter() - start
     undecided_rivals = measured.rival_poses[undecided(measured.figures, config.acceptance)]

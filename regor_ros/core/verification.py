@@ -95,7 +95,8 @@ def _verify(source, target, given, config: RegorConfig, source_viewpoint, target
     measured = measure(refined, source, target,
                        (source.points, matched, agreeing(T, source.points, matched, config.initial.inlier_threshold)),
                        covariance=covariance, uncertainty=uncertainty,
-                       hypotheses=searched, places=[], config=config, rules=Rules(config.acceptance), prior=prior)
+                       hypotheses=searched, places=[], config=config, rules=Rules(config.acceptance),
+                       refine=lambda pose: refined_from(pose, source, target, config, prior), prior=prior)
     verdict = judge(measured.figures, config.acceptance)
     moved_m, moved_deg = translation_error(T, given), rotation_error_deg(T, given)
     tolerance = config.verification

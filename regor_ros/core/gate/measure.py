@@ -7,6 +7,7 @@ nothing here compares a figure with a threshold."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -42,13 +43,15 @@ class Measured:
 
 def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedCloud, matches: tuple, *,
             covariance: np.ndarray, uncertainty: tuple[float, float], hypotheses: int, places: list,
-            config: RegorConfig, rules: Rules, prior: GravityPrior | None = None) -> Measured:
+            config: RegorConfig, rules: Rules, refine: Callable[[np.ndarray], PointRefinement],
+            prior: GravityPrior | None = None) -> Measured:
     """The figures of the refined pose T_target_source. ``matches`` are the feature matches
     (source points, target points, which of them agree with the pose within
     initial.inlier_threshold); ``uncertainty`` how well a right pose is known at this resolution
     (estimate.resolution_uncertainty: the free-space check's allowance); ``hypotheses`` how many
     poses the search compared (the evidence's trials) and ``places`` the poses of the distinct
-    places it found, best first (rivals, with the pose's symmetric twins). Under a gravity
+    places it found, best first (rivals, with the pose's symmetric twins); ``refine`` the
+    estimator's refinement of a pose, as the pose had it (a contending rival gets it). Under a gravity
     ``prior`` the pose's tilt and height are measured, and a rival, or a decoy, keeps to the prior."""
     T, voxel = refined.transform, config.features.voxel_size
     match_source, match_target, agree = matches
@@ -71,7 +74,7 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         def against_chance(agreeing: int) -> float:
             return log10_false_alarms(agreeing, support.independent_matches, support.chance, hypotheses)
         rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, rules.contends,
-                                            prior, against_chance)
+                                            refine, prior, against_chance)
         figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
     # the surfaces can carry a pose the features do not: measured where nothing else withholds it

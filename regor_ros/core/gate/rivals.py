@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
-from ..estimate import agreeing, point_refine, point_refine_all
+from ..estimate import PointRefinement, agreeing, point_refine, point_refine_all, resolution_uncertainty
 from ..geometry import column_bounds, evenly_spaced, to_matrix, transform_points
 from ..gravity import GravityPrior, clamp_of
 from ..initial import same_place
@@ -158,7 +158,8 @@ def lead_chance(own: int, rival: int) -> float:
 
 def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
            source: PreparedCloud, target: PreparedCloud, config: RegorConfig, contends: Callable[[float], bool],
-           prior: GravityPrior | None = None, against_chance=None) -> tuple[RivalFigures, np.ndarray]:
+           refine: Callable[[np.ndarray], PointRefinement], prior: GravityPrior | None = None,
+           against_chance=None) -> tuple[RivalFigures, np.ndarray]:
     """(the rivals' figures, their refined poses) of ``T``: ``overlap`` its (source keypoints,
     target keypoints, target normals) paired within tau_e, ``matches`` the feature matches
     (source points, target points, which of them agree with ``T``) and ``places`` the poses of
@@ -166,17 +167,32 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     iterations (estimation.max_iterations: a place that falls back onto the pose must get there),
     and inliers are counted, on the same RIVAL_POINTS source keypoints (for speed). Under a
     gravity prior, a turn that tips the source over, or lifts its sensor out of the height band,
-    is no rival (a road seen upside down). ``against_chance`` gives log10 of the false alarms of a
-    count of independent agreeing matches, as the pose's evidence counts them (None: not measured)."""
+    is no rival (a road seen upside down). A rival that contends (``contends`` its lead chance: it
+    may make the pose ambiguous) is then judged as the pose is: ``refine`` gives it the estimator's
+    full refinement (every keypoint, planes, settled), its figures are taken again there, and its
+    free space is read with the allowance a right pose has at this resolution, as the pose's is. A
+    rival read more coarsely than the pose would lose to it on the coarseness alone. ``against_chance``
+    gives log10 of the false alarms of a count of independent agreeing matches, as the pose's
+    evidence counts them (None: not measured)."""
     _, final_target, target_normals = overlap
     if len(final_target) < 3:
         return RivalFigures.of([]), np.zeros((0, 4, 4))
     est, tau = config.estimation, config.initial.inlier_threshold
     radius = config.features.fpfh_radius
     sample = evenly_spaced(source.points, RIVAL_POINTS)
-    own = len(point_refine(T, sample, target.neighbours, est.inlier_threshold, 0).source_index)
+
+    def sample_inliers(pose: np.ndarray) -> int:
+        return len(point_refine(pose, sample, target.neighbours, est.inlier_threshold, 0).source_index)
+
+    own = sample_inliers(T)
     match_source, match_target, agree_with_T = matches
     own_matches = int(agree_with_T.sum())
+
+    def agreement(pose: np.ndarray) -> tuple[np.ndarray, float]:
+        agree = agreeing(pose, match_source, match_target, tau)
+        return agree, lead_chance(len(independent(match_source[agree_with_T & ~agree], radius)),
+                                  len(independent(match_source[agree & ~agree_with_T], radius)))
+
     others = [pose for pose in places if not same_place(pose, T, tau)][:RIVAL_PLACES]
     starts = np.concatenate([half_turns(final_target) @ T,
                              quarter_turns(T, target_normals, (match_source, match_target), tau),
@@ -186,20 +202,25 @@ def rivals(T: np.ndarray, overlap: tuple, matches: tuple, places: list,
     rows, poses = [], []
     for refined in point_refine_all(starts, sample, target.neighbours, est.inlier_threshold, est.max_iterations,
                                     clamp_of(prior)):
-        agree = agreeing(refined.transform, match_source, match_target, tau)
-        chance = lead_chance(len(independent(match_source[agree_with_T & ~agree], radius)),
-                             len(independent(match_source[agree & ~agree_with_T], radius)))
+        agree, chance = agreement(refined.transform)
+        inliers, uncertainty = len(refined.source_index), None
         # free space is what costs (a map seen from the rival's place); a rival the pose clearly
-        # leads makes nothing ambiguous whatever it shows, so it is not measured, nor its own
-        # matches against chance
+        # leads makes nothing ambiguous whatever it shows, so it is neither refined further nor
+        # measured, nor its own matches against chance
         worst = opposite = false_alarms = None
         if contends(chance):
+            refined = refine(refined.transform)
+            uncertainty = resolution_uncertainty(refined.transform, source.points[refined.source_index],
+                                                 config.features.voxel_size)
+            agree, chance = agreement(refined.transform)
+            inliers = sample_inliers(refined.transform)
+        if contends(chance):
             visibility = free_space_figures(refined.transform, source, target, config.acceptance,
-                                            refined.target_index)
+                                            refined.target_index, uncertainty)
             worst, opposite = visibility.worst_free_space, visibility.opposite_sides
             if against_chance is not None:
                 false_alarms = against_chance(len(independent(match_source[agree], radius)))
-        rows.append((len(refined.source_index) / max(own, 1), int(agree.sum()) / max(own_matches, 1),
+        rows.append((inliers / max(own, 1), int(agree.sum()) / max(own_matches, 1),
                      worst, opposite, rotation_error_deg(refined.transform, T), chance,
                      moved(refined.transform, T, sample) / tau, false_alarms))
         poses.append(refined.transform)
