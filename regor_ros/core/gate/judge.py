@@ -227,7 +227,6 @@ CHECKS = (
                               f"{figures.reverse_offset_tau:.1f} inlier thresholds away): a different place or an "
                               "ambiguous scene (acceptance.reverse_check)")),
 )
-MEASURABLE = CHECKS[:5]  # the checks before which a pose's rivals are not worth refining
 FREE_SPACE_CHECKS = tuple(check for check in CHECKS if check.name.startswith("max_free_space"))
 PASSED = len(CHECKS)
 
@@ -254,9 +253,12 @@ class Rules:
 
     acceptance: AcceptanceConfig
 
-    def measurable(self, figures: Figures) -> bool:
-        """Whether the pose passes the checks that make its rivals worth refining (MEASURABLE)."""
-        return bool(passes(figures, self.acceptance, MEASURABLE))
+    def rivals_may_matter(self, figures: Figures) -> bool:
+        """Whether the rivals can change the verdict: the pose passes every check they cannot change
+        (all but the ambiguity and the feature count that a pose singled out among them is spared:
+        _needed_features). Against chance, the surfaces must already have been tried."""
+        spared = dataclasses.replace(self.acceptance, min_feature_inliers=0)
+        return bool(passes(figures, spared))
 
     def chance_explains(self, log10_false_alarms: float) -> bool:
         """Whether chance gives this support more often than acceptance.max_false_alarms allows."""
@@ -264,8 +266,8 @@ class Rules:
 
     def surfaces_may_carry(self, figures: Figures) -> bool:
         """Whether the surfaces' test against chance can change the verdict: the feature matches
-        fail theirs and the pose passes every other check (their feature count included, which a
-        pose the surfaces carry does not need: _needed_features)."""
+        fail theirs and the pose passes every other check measured so far (their feature count
+        included, which a pose the surfaces carry does not need: _needed_features)."""
         unless_chance = dataclasses.replace(self.acceptance, max_false_alarms=np.inf, min_feature_inliers=0)
         return self.chance_explains(figures.log10_false_alarms) and bool(passes(figures, unless_chance))
 

@@ -1,9 +1,10 @@
-"""Measure every figure the gate judges a pose on (gate/figures.py), whatever the verdict, so a
-user and the calibration see all of them. The rivals cost a refinement each: they are measured
-only for a pose that passes the checks that make it measurable; the surfaces' test against chance
-(a dozen refinements) only for a pose whose feature matches fail theirs and that passes every other
-check: only then can it change the verdict. Which is which, the judge's rules say (judge.Rules):
-nothing here compares a figure with a threshold."""
+"""Measure the figures the gate judges a pose on (gate/figures.py), so a user and the calibration
+see them. Two tests cost refinements, and each is measured only where it can change the verdict:
+the surfaces' test against chance (a dozen refinements) for a pose whose feature matches fail
+theirs and that passes every other check; then the rivals (a refinement each, a full one for a
+rival that contends) for a pose that passes every check they cannot change, chance included. A
+pose that fails a check neither can change is withheld without them. Which is which, the judge's rules say
+(judge.Rules): nothing here compares a figure with a threshold."""
 from __future__ import annotations
 
 import dataclasses
@@ -69,13 +70,6 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         independent_agreeing=support.independent_agreeing, feature_inliers=int(agree.sum()),
         weakest_support=slide_support,
         **visibility.as_figures(), **({} if prior is None else gravity_figures(T, prior, source, target)))
-    rival_poses = np.zeros((0, 4, 4))
-    if rules.measurable(figures):
-        def against_chance(agreeing: int) -> float:
-            return log10_false_alarms(agreeing, support.independent_matches, support.chance, hypotheses)
-        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, rules.contends,
-                                            refine, prior, against_chance)
-        figures = dataclasses.replace(figures, rivals=rival_figures)
     surfaces = None
     # the surfaces can carry a pose the features do not: measured where nothing else withholds it
     if rules.surfaces_may_carry(figures):
@@ -83,6 +77,13 @@ def measure(refined: PointRefinement, source: PreparedCloud, target: PreparedClo
         figures = dataclasses.replace(
             figures, surface_log10_false_alarms=surfaces.log10_false_alarms, surface_cells=surfaces.cells,
             surface_cells_agreeing=surfaces.agreeing, surface_chance=surfaces.chance)
+    rival_poses = np.zeros((0, 4, 4))
+    if rules.rivals_may_matter(figures):
+        def against_chance(agreeing: int) -> float:
+            return log10_false_alarms(agreeing, support.independent_matches, support.chance, hypotheses)
+        rival_figures, rival_poses = rivals(T, overlap, matches, places, source, target, config, rules.contends,
+                                            refine, prior, against_chance)
+        figures = dataclasses.replace(figures, rivals=rival_figures)
     return Measured(figures, visibility, support, surfaces, rival_poses)
 
 
