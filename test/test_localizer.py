@@ -157,3 +157,49 @@ def test_an_imu_without_the_maps_up_is_said_to_leave_the_prior_off():
     assert len(said) == 1 and "gravity.target_up is unknown" in said[0] and "'0 0 1'" in said[0]
     assert unused_settings(RegorConfig.preset("outdoor").replace({"gravity.target_up": "0 0 1"}), with_imu) == []
     assert unused_settings(RegorConfig.preset("outdoor"), make_settings({})) == []
+
+
+def _frames(points: np.ndarray, count: int) -> list[np.ndarray]:
+    """``count`` disjoint random samplings of ``points``: a resting sensor's frames, its pattern
+    not repeating."""
+    order = np.random.default_rng(0).permutation(len(points))
+    return [points[part] for part in np.array_split(order, count)]
+
+
+def test_without_odometry_the_first_registration_gathers_the_scans_at_rest_and_fuses_them():
+    """A robot switched on at rest, no odometry: the worker waits for accumulate_scans scans (up to
+    rest_wait), sees from the scans that the sensor did not move, and registers them fused. A scan
+    after the sensor moved is registered alone, saying so."""
+    localizer, recorder = started(accumulate_scans=3, rest_wait=60.0)
+    try:
+        localizer.store("target", "map", SECOND, TARGET)
+        for k, frame in enumerate(_frames(SOURCE, 3)):
+            localizer.store("source", "camera", SECOND + k * SECOND // 10, frame)
+            time.sleep(0.2)   # the worker could take each: it waits for the rest
+        fused = recorder.wait_for_outcomes(1)
+        localizer.store("target", "map", 2 * SECOND, TARGET)
+        localizer.store("source", "camera", 2 * SECOND, SOURCE + np.array([0.5, 0.0, 0.0]))
+        moved = recorder.wait_for_outcomes(2)
+    finally:
+        localizer.stop(5.0)
+    assert fused.status["accumulation"] == {"scans_fused": 3, "without_odometry": 0, "at_rest": True,
+                                            "more_to_fuse": 0, "waited_for_odometry_s": fused.status[
+                                                "accumulation"]["waited_for_odometry_s"]}
+    assert fused.result.accepted and rotation_error_deg(fused.result.transform, TRUTH) < 5
+    assert translation_error(fused.result.transform, TRUTH) < 0.1
+    alone = moved.status["accumulation"]
+    assert alone["alone"] == "no odometry received" and "the scans show motion" in alone["reason"], alone
+
+
+def test_the_wait_for_scans_at_rest_is_bounded_by_rest_wait():
+    localizer, recorder = started(accumulate_scans=3, rest_wait=1.0)
+    try:
+        localizer.store("target", "map", SECOND, TARGET)
+        start = time.monotonic()
+        localizer.store("source", "camera", SECOND, SOURCE)
+        alone = recorder.wait_for_outcomes(1)
+        waited = time.monotonic() - start
+    finally:
+        localizer.stop(5.0)
+    assert waited >= 1.0 and alone.result.accepted
+    assert alone.status["accumulation"]["alone"] == "no odometry received"

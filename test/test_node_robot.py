@@ -255,3 +255,41 @@ def test_the_source_up_comes_from_an_imu_and_a_tipped_over_sensor_gets_no_pose(i
     finally:
         ros.destroy_publisher(imu)
         assert node.stop() < 5.0
+
+
+def test_a_robot_switched_on_at_rest_without_odometry_starts_from_its_scans_fused(install, ros):
+    """No odometry, the sensor at rest: the node says it is gathering, waits for accumulate_scans
+    scans (published at 10 Hz, stamped as a driver stamps them), finds from the scans that the
+    sensor did not move, and its first registration is of the three fused: a pose."""
+    from conftest import REPO
+    from regor_ros.ros.messages import stamp_seconds
+    demo = REPO / "demo"
+    scan, truth = np.load(demo / "src.npy"), np.loadtxt(demo / "gt.txt")
+    order = np.random.default_rng(0).permutation(len(scan))
+    frames = [scan[part] for part in np.array_split(order, 3)]   # a resting sensor's frames
+    node = NodeProcess(install, "--params-file",
+                       str(install / "regor_ros" / "share" / "regor_ros" / "config" / "indoor.yaml"),
+                       "-p", "mode:=map", "-p", f"map_file:={demo / 'tgt.npy'}", "-p", "map_cache:=false",
+                       "-p", "accumulate_scans:=3", "-p", "rest_wait:=60.0", "-r", "__node:=register_node")
+    try:
+        assert _listening(ros), node.output()
+        seen = len(ros.statuses)
+        stamps = []
+        for frame in frames:
+            message = xyz_to_cloud(frame, ros.header("camera"))
+            stamps.append(stamp_seconds(message.header))
+            ros.source_pub.publish(message)
+            ros.spin_until(lambda: False, 0.1)
+        assert ros.spin_until(lambda: any(s.get("source_stamp") == stamps[-1] for s in ros.statuses[seen:]),
+                              ANSWER_TIMEOUT), node.output()
+        first = ros.statuses[seen]
+        assert first["source_stamp"] == stamps[-1], "registered before the scans at rest were gathered"
+        assert first["accumulation"]["scans_fused"] == 3 and first["accumulation"]["at_rest"], first
+        assert first["accepted"], first["reason"]
+        assert ros.spin_until(lambda: any(p.header.stamp == message.header.stamp for p in ros.poses), 10.0)
+        pose = next(p for p in ros.poses if p.header.stamp == message.header.stamp)
+        T = pose_to_matrix(pose)
+        assert is_success(T, truth, "indoor"), (rotation_error_deg(T, truth), translation_error(T, truth))
+    finally:
+        assert node.stop() < 5.0
+    assert "gathering up to 3 scans" in node.output()

@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 
 from regor_ros.core import ORIGIN, Figures, RegorConfig, RivalFigures, ambiguity, prepare_cloud, register
 from regor_ros.core.gate.judge import judge, rival_chances
-from regor_ros.core.gate.rivals import dominant_direction, lead_chance, moved, quarter_turns, voted_translation
+from regor_ros.core.gate.rivals import dominant_direction, lead_chance, quarter_turns, voted_translation
+from regor_ros.core.geometry import moved
 from regor_ros.core.kernels import pooled_counts
 from regor_ros.core.metrics import rotation_error_deg, translation_error
 from regor_ros.core.places import another_answer

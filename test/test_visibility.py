@@ -13,6 +13,7 @@ from regor_ros.core.gate.rivals import rivals as refined_rivals
 from regor_ros.core.gate.visibility import free_space_figures, visibility_figures
 from regor_ros.core.geometry import transform_points
 from regor_ros.core.metrics import random_rigid_motion
+from regor_ros.core.pipeline import refined_from
 from regor_ros.core.range_image import RangeImage
 from regor_ros.core.viewpoint import ORIGIN, parse_viewpoint
 
@@ -54,7 +55,8 @@ def verdict_on_visibility(T, source, target):
     visibility = visibility_figures(T, source, target, INDOOR.acceptance, np.arange(len(target)))
     overlap = (source.points, target.points, target.normals)
     rivals, _ = refined_rivals(T, overlap, matched(T, source), [], source, target, INDOOR,
-                               Rules(INDOOR.acceptance).contends)
+                               Rules(INDOOR.acceptance).contends,
+                               lambda pose: refined_from(pose, source, target, INDOOR, None))
     figures = Figures(num_inliers=5000, fitness=0.9, constrained=True, surface_agreement=1.0,
                       log10_false_alarms=-50.0, independent_agreeing=100, feature_inliers=len(source),
                       rivals=rivals, **visibility.as_figures())

@@ -32,6 +32,7 @@ _HOMES = {
     "scan_history": ("ALONE_REASONS", "AccumulationLimits", "ScanHistory"),
     "search_region": ("SearchRegion",),
     "sequence": ("ScanSequence",),
+    "stillness": ("Stillness", "at_rest", "was_still"),
     "summary": ("Summary",),
     "verification": ("Verification", "verify"),
     "viewpoint": ("ORIGIN", "parse_viewpoint"),

@@ -71,6 +71,11 @@ from .search_region import (
 from .sequence import (
     ScanSequence as ScanSequence,
 )
+from .stillness import (
+    Stillness as Stillness,
+    at_rest as at_rest,
+    was_still as was_still,
+)
 from .summary import (
     Summary as Summary,
 )

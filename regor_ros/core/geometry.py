@@ -24,6 +24,13 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ T[:3, :3].T + T[:3, 3]
 
 
+def moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
+    """How far pose ``A`` puts ``points`` (source frame) from where pose ``B`` does: the RMS
+    distance, which does not depend on where the source's frame is."""
+    apart = transform_points(A, points) - transform_points(B, points)
+    return float(np.sqrt(np.mean(np.sum(apart ** 2, axis=1))))
+
+
 def evenly_spaced(points: np.ndarray, count: int) -> np.ndarray:
     """At most ``count`` of ``points``, evenly spaced through their order (a cheap, deterministic
     subsample for refinements that only need to represent the cloud)."""

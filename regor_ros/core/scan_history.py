@@ -110,6 +110,12 @@ class ScanHistory:
         near = [j for j in (i - 1, i) if 0 <= j < len(stamps) and abs(stamps[j] - stamp) <= tolerance]
         return self._odometry[min(near, key=lambda j: abs(stamps[j] - stamp))] if near else None
 
+    def recent(self, newest: float, limits: AccumulationLimits) -> list[np.ndarray]:
+        """The scans up to the one stamped ``newest``, oldest first: at most ``limits.scans``, none
+        older than ``limits.max_age`` before it (what a sensor at rest may fuse: stillness.at_rest)."""
+        scans = [p for s, p in self.scans if newest - limits.max_age <= s <= newest]
+        return scans[-limits.scans:]
+
     def sequence(self, newest: float, limits: AccumulationLimits,
                  viewpoint=ORIGIN) -> tuple[ScanSequence | None, dict]:
         """The scans to fuse, ending with the one stamped ``newest``, and what was decided (for

@@ -194,7 +194,8 @@ class Localizer:
         if (self._check_due and maps.prepared is not None and source is not None and source.serial > self._checked
                 and not isinstance(job, PrepareMap)):
             job = CheckPose(source)
-        if isinstance(job, (Register, CheckPose)) and self.context.awaits_odometry(job.source.stamp) > 0:
+        if isinstance(job, (Register, CheckPose)) and (self.context.awaits_odometry(job.source.stamp) > 0
+                                                       or self.context.awaits_rest() > 0):
             return None
         return job
 
@@ -203,7 +204,7 @@ class Localizer:
             with self.lock:
                 job = self._next_job()
                 while job is None and not self.shared.stopping:
-                    self.lock.wait(self.context.still_waiting() or 0.5)   # odometry's arrival wakes it too
+                    self.lock.wait(self.context.still_waiting() or 0.5)   # odometry's or a scan's arrival wakes it too
                     job = self._next_job()
                 if self.shared.stopping:
                     return
@@ -238,7 +239,7 @@ class Localizer:
             pose, why = None, "no map in use"
         if pose is not None and target is not None:
             T_map_sensor = pose.transform @ settings.base_extrinsic() if settings.base_frame else pose.transform
-            source, viewpoints, _ = self.context.source_input(src, settings)
+            source, viewpoints, _ = self.context.source_input(src, settings, config)
             try:
                 result = verify(source, target, T_map_sensor, config, **viewpoints)
             except RegistrationError as exc:
@@ -273,7 +274,7 @@ class Localizer:
         try:
             config, source_up = self.context.gravity(config, settings, src)
             region = self.context.region(hint, target_frame)
-            source, viewpoints, accumulation = self.context.source_input(src, settings)
+            source, viewpoints, accumulation = self.context.source_input(src, settings, config)
             if accumulation is not None:
                 accumulation["waited_for_odometry_s"] = round(waited, 3)
             result = register(source, target, config, search_region=region, **viewpoints)

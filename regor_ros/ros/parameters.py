@@ -110,6 +110,14 @@ class NodeSettings:
                                    "child frame: 'x, y, z, roll, pitch, yaw' [m, rad] (identity when the "
                                    "odometry is the sensor's own)")
 
+    fuse_at_rest: bool = param(True, "without odometry, fuse at identity the recent scans (up to accumulate_scans, "
+                                "within accumulate_max_age) that the scans themselves show were taken at rest: a "
+                                "resting non-repeating LiDAR fills in its field of view; a scan that moved is "
+                                "registered alone")
+    rest_wait: float = param(1.0, "without odometry and with fuse_at_rest, the first registration after activation "
+                              "waits at most this for accumulate_scans scans, so a robot switched on at rest starts "
+                              "from a fused scan [s]; 0 = no wait", 0.0, 60.0)
+
     base_frame: str = param("", "the robot's base frame: pose and pose_with_covariance give its pose (Nav2's "
                              "/initialpose wants it) instead of the source frame's; '' = the source frame's")
     base_to_sensor: str = param("0, 0, 0, 0, 0, 0", "fixed pose of the source cloud's frame in base_frame: "

@@ -1,7 +1,8 @@
 """What a registration of the newest scan is given beside it, without ROS: the scans before it
 fused along odometry (accumulate_scans; the worker waits up to odometry_wait for the odometry
-that places the newest), its up direction from the IMU (the gravity prior) and the hint of where
-it is (initial_guess)."""
+that places the newest), or, with no odometry, the ones the scans show were taken at rest
+(fuse_at_rest; the first registration waits up to rest_wait to gather them), its up direction
+from the IMU (the gravity prior) and the hint of where it is (initial_guess)."""
 from __future__ import annotations
 
 import time
@@ -9,7 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core import ScanHistory, SearchRegion
+from ..core import ScanHistory, SearchRegion, at_rest
+from ..core.scan_history import NO_ODOMETRY
 from .imu_up import ImuUp
 from .inputs import Cloud
 from .report import Report
@@ -34,6 +36,9 @@ class SourceContext:
         self.imu = ImuUp() if shared.settings.imu_topic else None
         self.hint: Hint | None = None
         self._waiting_since: float | None = None   # the worker waits for odometry since (monotonic), or None
+        self._first_scan: float | None = None      # when the first scan arrived (monotonic), or None
+        self._gathering = True                     # no source taken yet: the first may wait for scans at rest
+        self._announced = False                    # the node said it is gathering
 
     def _capacity(self) -> int:
         """Scans kept for accumulation: twice the scans fused, so ones without odometry can be skipped."""
@@ -42,6 +47,8 @@ class SourceContext:
     def add_scan(self, stamp: float, points: np.ndarray) -> None:
         """A source scan (the caller holds the lock)."""
         self.history.add_scan(stamp, points, self._capacity())
+        if self._first_scan is None:
+            self._first_scan = time.monotonic()
 
     def add_odometry(self, stamp: float, T_odom_scan: np.ndarray) -> None:
         with self.shared.lock:
@@ -63,11 +70,28 @@ class SourceContext:
             self._waiting_since = time.monotonic()
         return self.still_waiting()
 
-    def still_waiting(self) -> float:
-        """Seconds left of a wait for odometry under way, 0 when none (the caller holds the lock)."""
-        if self._waiting_since is None:
+    def awaits_rest(self) -> float:
+        """Seconds the first source still waits for scans to fuse at rest (the caller holds the
+        lock): with no odometry and fuse_at_rest, until accumulate_scans scans have arrived or
+        rest_wait has passed since the first."""
+        settings = self.shared.settings
+        scans = settings.accumulation().scans
+        if (not self._gathering or not settings.fuse_at_rest or scans < 2 or self.history.has_odometry
+                or self._first_scan is None or len(self.history.scans) >= scans):
             return 0.0
-        return max(0.0, self._waiting_since + self.shared.settings.odometry_wait - time.monotonic())
+        left = max(0.0, self._first_scan + settings.rest_wait - time.monotonic())
+        if left > 0 and not self._announced:
+            self._announced = True
+            self.report.logger.info(f"no odometry: gathering up to {scans} scans (accumulate_scans) for at most "
+                                    f"rest_wait={settings.rest_wait:g} s, to fuse the ones taken at rest")
+        return left
+
+    def still_waiting(self) -> float:
+        """Seconds left of a wait under way (for odometry, or for scans at rest), 0 when none (the
+        caller holds the lock)."""
+        odometry = 0.0 if self._waiting_since is None else \
+            self._waiting_since + self.shared.settings.odometry_wait - time.monotonic()
+        return max(0.0, odometry, self.awaits_rest())
 
     def end_wait(self) -> float:
         """The worker takes a job: the seconds it waited for odometry, and the clock stopped."""
@@ -109,8 +133,9 @@ class SourceContext:
             return None
         return hint.region
 
-    def source_input(self, src: Cloud, settings):
-        """(the scan alone, or fused with the scans before it along odometry (accumulate_scans);
+    def source_input(self, src: Cloud, settings, config):
+        """(the scan alone, or fused with the scans before it along odometry (accumulate_scans), or
+        without odometry with the ones taken at rest (fuse_at_rest, judged at ``config``'s voxel);
         the viewpoints to give register() and verify() with it; what was fused, for status). The
         fused scans carry their own viewpoints (the scan frame's origin)."""
         source_viewpoint, target_viewpoint = settings.viewpoints()
@@ -118,7 +143,17 @@ class SourceContext:
         sequence, info = None, None
         if limits.scans >= 2:
             with self.shared.lock:
+                self._gathering = False
                 sequence, info = self.history.sequence(src.stamp, limits, source_viewpoint)
+                recent = self.history.recent(src.stamp, limits)
+            if sequence is None and info["alone"] == NO_ODOMETRY and settings.fuse_at_rest and len(recent) >= 2:
+                sequence, moved = at_rest(recent, config.features.voxel_size, config.features.normal_radius,
+                                          source_viewpoint)
+                if sequence is None:
+                    info["reason"] = f"{NO_ODOMETRY}, and the scans show motion ({moved}): registered alone"
+                else:
+                    info = {"scans_fused": len(sequence.scans), "without_odometry": 0, "at_rest": True,
+                            "more_to_fuse": 0}
         if sequence is None:
             return src.points, {"source_viewpoint": source_viewpoint, "target_viewpoint": target_viewpoint}, info
         return sequence, {"target_viewpoint": target_viewpoint}, info

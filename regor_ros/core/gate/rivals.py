@@ -37,7 +37,7 @@ from .. import kernels
 from ..cloud import PreparedCloud
 from ..config import RegorConfig
 from ..estimate import PointRefinement, agreeing, point_refine, point_refine_all, resolution_uncertainty
-from ..geometry import column_bounds, evenly_spaced, to_matrix, transform_points
+from ..geometry import column_bounds, evenly_spaced, moved, to_matrix
 from ..gravity import GravityPrior, clamp_of
 from ..initial import same_place
 from ..metrics import rotation_error_deg
@@ -139,13 +139,6 @@ def quarter_turns(T: np.ndarray, overlap_normals: np.ndarray, matches: tuple[np.
     axis = dominant_direction(overlap_normals)
     turned = Rotation.from_rotvec(np.radians(QUARTER_TURNS_DEG)[:, None] * axis).as_matrix() @ T[:3, :3]
     return np.array([to_matrix(R, voted_translation(R, matches[0], matches[1], cell)) for R in turned])
-
-
-def moved(A: np.ndarray, B: np.ndarray, points: np.ndarray) -> float:
-    """How far pose ``A`` puts ``points`` (source frame) from where pose ``B`` does: the RMS
-    distance, which does not depend on where the source's frame is."""
-    apart = transform_points(A, points) - transform_points(B, points)
-    return float(np.sqrt(np.mean(np.sum(apart ** 2, axis=1))))
 
 
 def lead_chance(own: int, rival: int) -> float:
