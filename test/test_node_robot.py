@@ -262,6 +262,7 @@ def test_a_robot_switched_on_at_rest_without_odometry_starts_from_its_scans_fuse
     scans (published at 10 Hz, stamped as a driver stamps them), finds from the scans that the
     sensor did not move, and its first registration is of the three fused: a pose."""
     from conftest import REPO
+
     from regor_ros.ros.messages import stamp_seconds
     demo = REPO / "demo"
     scan, truth = np.load(demo / "src.npy"), np.loadtxt(demo / "gt.txt")

@@ -10,7 +10,7 @@ from regor_ros.core.gate.judge import judge, rival_chances
 from regor_ros.core.gate.rivals import dominant_direction, lead_chance, quarter_turns, voted_translation
 from regor_ros.core.geometry import moved
 from regor_ros.core.kernels import pooled_counts
-from regor_ros.core.metrics import rotation_error_deg, translation_error
+from regor_ros.core.metrics import is_success, rotation_error_deg, translation_error
 from regor_ros.core.places import another_answer
 
 
@@ -128,8 +128,8 @@ def test_a_box_room_turned_by_a_quarter_is_withheld_with_the_truth_among_the_can
     assert not result.accepted and result.verdict.failed == "max_ambiguity", result.reason
     assert result.reason.startswith("ambiguous: two poses fit") and result.ambiguity > config.acceptance.max_ambiguity
     np.testing.assert_array_equal(result.candidates[0].transform, result.transform)
-    twin = result.candidates[1].transform
-    assert rotation_error_deg(twin, T_gt) < 5 and translation_error(twin, T_gt) < 0.15
+    twin = result.candidates[1].transform   # refined as the pose is: right by the benchmark's measure
+    assert is_success(twin, T_gt, "indoor"), (rotation_error_deg(twin, T_gt), translation_error(twin, T_gt))
     summary = result.summary()
     assert summary.as_json()["figures"]["rivals"] and summary.ambiguity == result.ambiguity
 

@@ -49,6 +49,8 @@ def main(argv=None) -> int:
                      f"{instead or ('--profile' if args.profile else '--verify')} registers them as they are")
     if (args.stress or args.narrow) and (args.profile or args.verify or instead != "--maps"):
         parser.error("--stress and --narrow change the queries of a --maps run")
+    if args.at_rest and not args.narrow:
+        parser.error("--at-rest gives the views of --narrow at rest: give --narrow with it")
     if args.stress and args.narrow:
         parser.error("--stress and --narrow are two runs: give one")
     if args.no_viewpoints and (args.profile or instead not in (None, "--threedmatch")):
@@ -121,6 +123,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="with --maps: each query scan as a narrow solid-state sensor at its origin would "
                              "see it (70 x 70 deg, a return per 0.7 deg), facing four ways: sparse scans, "
                              "and from xseason, sparse scans from another recording than their map's")
+    parser.add_argument("--at-rest", action="store_true",
+                        help="with --narrow: each view also as the frames of a narrow sensor at rest (its "
+                             "pattern filling in), fused as the node fuses scans taken at rest without odometry")
     parser.add_argument("--map-scaling", type=Path, metavar="SEQUENCE",
                         help="instead: tile the map of one sequence folder --tiles times and measure "
                              "preparation, registration time and peak memory against map size")
@@ -187,7 +192,16 @@ def _map_main(args, argv, parser) -> int:
     from ..tools.register_cli import parse_overrides
     from .batch_scaling import run_batch_scaling
     from .datasets import TILE_SPACING
-    from .maps import IMU_NOTE, LEVEL_MOUNTED, MAP_METHODS, NARROW_NOTE, STRESS_NOTE, run_maps, run_scaling
+    from .maps import (
+        AT_REST_NOTE,
+        IMU_NOTE,
+        LEVEL_MOUNTED,
+        MAP_METHODS,
+        NARROW_NOTE,
+        STRESS_NOTE,
+        run_maps,
+        run_scaling,
+    )
     from .results import LEVEL_NOTE, header
 
     try:
@@ -213,9 +227,9 @@ def _map_main(args, argv, parser) -> int:
     elif args.maps:
         report = run_maps(args.maps, _methods(args.methods, MAP_METHODS, parser), config, args.out,
                           header("regor_ros scan-to-map benchmark", argv) + about + LEVEL_NOTE * args.level
-                          + STRESS_NOTE * args.stress + NARROW_NOTE * args.narrow
+                          + STRESS_NOTE * args.stress + NARROW_NOTE * args.narrow + AT_REST_NOTE * args.at_rest
                           + (IMU_NOTE.format(args.imu_up) if args.imu_up is not None else ""), args.pairs,
-                          args.stress, args.narrow, args.imu_up)
+                          args.stress, args.narrow, args.imu_up, args.at_rest)
     else:
         report = run_scaling(args.map_scaling, args.tiles, config, args.out, header(
             "regor_ros map scaling benchmark", argv) + about + " The map is tiled: identical copies "

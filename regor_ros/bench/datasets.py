@@ -35,6 +35,12 @@ NARROW_STEP_DEG = 0.7
 NARROW_HEADINGS = (0, 90, 180, 270)
 NARROW_INPUTS = tuple(f"narrow {heading:03d}" for heading in NARROW_HEADINGS)
 NARROW_MIN_RETURNS = 500
+# --at-rest: a narrow sensor at rest returns RESTING_FRAMES frames (the node's accumulate_scans in map
+# mode), each the nearest return per bin of a grid shifted by a random fraction of a bin: a
+# non-repeating pattern fills in the field of view frame by frame (input `narrow <heading> at rest`)
+RESTING_FRAMES = 5
+AT_REST = " at rest"
+NARROW_AT_REST_INPUTS = tuple(f"{narrow}{AT_REST}" for narrow in NARROW_INPUTS)
 SAMPLE_SEED = 600                # fixes --sample's draw
 SHORT_NAMES = {  # scene folder -> the place name the other indoor sets use (bench_results.place)
     "7-scenes-redkitchen": "redkitchen", "sun3d-home_at-home_at_scan1_2013_jan_1": "home_at",
@@ -126,28 +132,43 @@ class Query:
     history: ScanSequence | None  # the scans received up to it with odometry; None for a submap
 
     def cloud(self, which: str):
-        """The input ``which`` (INPUTS, STRESS_INPUTS, NARROW_INPUTS) of this query; None when it has none."""
+        """The input ``which`` (INPUTS, STRESS_INPUTS, NARROW_INPUTS, NARROW_AT_REST_INPUTS: a list
+        of frames) of this query; None when it has none."""
+        if which.endswith(AT_REST):
+            frames = resting_frames(self.scan, float(which.split()[1]), f"{self.sequence}/{self.id}/{which}")
+            return frames if len(frames) == RESTING_FRAMES else None
         if which.startswith("narrow"):
             view = narrow_view(self.scan, float(which.split()[1]))
             return view if len(view) >= NARROW_MIN_RETURNS else None
         return {"single": self.scan, "thinned": self.scan[::THINNING], "sequence": self.history}[which]
 
 
-def narrow_view(scan: np.ndarray, heading_deg: float) -> np.ndarray:
+def narrow_view(scan: np.ndarray, heading_deg: float, shift: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     """The points of ``scan`` (in its sensor's frame) a narrow sensor at the origin facing ``heading_deg``
     about z would return: the nearest in each NARROW_STEP_DEG bin of azimuth and elevation within
-    NARROW_FIELD_DEG of the heading, in the order a scanning sensor returns them (column by column)."""
+    NARROW_FIELD_DEG of the heading, in the order a scanning sensor returns them (column by column).
+    ``shift``: the bins' offset in azimuth and elevation, in bins."""
     half = NARROW_FIELD_DEG / 2
     distance = np.linalg.norm(scan, axis=1)
     azimuth = (np.degrees(np.arctan2(scan[:, 1], scan[:, 0])) - heading_deg + 180.0) % 360.0 - 180.0
     elevation = np.degrees(np.arcsin(np.clip(scan[:, 2] / np.maximum(distance, 1e-9), -1.0, 1.0)))
     inside = np.flatnonzero((np.abs(azimuth) < half) & (np.abs(elevation) < half) & (distance > 0))
-    columns = int(np.ceil(NARROW_FIELD_DEG / NARROW_STEP_DEG))
-    bins = (np.floor((azimuth[inside] + half) / NARROW_STEP_DEG).astype(np.int64) * columns
-            + np.floor((elevation[inside] + half) / NARROW_STEP_DEG).astype(np.int64))
+    columns = int(np.ceil(NARROW_FIELD_DEG / NARROW_STEP_DEG)) + 1
+    bins = (np.floor((azimuth[inside] + half) / NARROW_STEP_DEG + shift[0]).astype(np.int64) * columns
+            + np.floor((elevation[inside] + half) / NARROW_STEP_DEG + shift[1]).astype(np.int64))
     order = np.lexsort((distance[inside], bins))
     first = np.r_[True, bins[order][1:] != bins[order][:-1]][:len(order)]
     return scan[inside[order[first]]]
+
+
+def resting_frames(scan: np.ndarray, heading_deg: float, name: str) -> list[np.ndarray]:
+    """The frames a narrow sensor at rest facing ``heading_deg`` returns of ``scan``: RESTING_FRAMES
+    narrow views, the first on the grid, each later one's grid shifted by a random fraction of a bin
+    (seeded by ``name``), oldest first; those with fewer than NARROW_MIN_RETURNS left out."""
+    shifts = np.random.default_rng(zlib.crc32(name.encode())).uniform(0.0, 1.0, (RESTING_FRAMES, 2))
+    shifts[-1] = 0.0   # the newest frame, whose pose is registered, is the narrow view itself
+    views = [narrow_view(scan, heading_deg, (float(a), float(e))) for a, e in shifts]
+    return [view for view in views if len(view) >= NARROW_MIN_RETURNS]
 
 
 def sequence_folders(folders: list[Path]) -> list[Path]:

@@ -29,6 +29,8 @@ from ..core import (
     ERROR_SIGMAS_99,
     RegistrationError,
     RegorConfig,
+    ScanSequence,
+    at_rest,
     error_sigmas,
     is_success,
     prepare_cloud,
@@ -42,11 +44,13 @@ from ..io.map_file import load_map_file, write_trajectory
 from .datasets import (
     INPUTS,
     MAP_UP,
+    NARROW_AT_REST_INPUTS,
     NARROW_FIELD_DEG,
     NARROW_HEADINGS,
     NARROW_INPUTS,
     NARROW_MIN_RETURNS,
     NARROW_STEP_DEG,
+    RESTING_FRAMES,
     STRESS_INPUTS,
     TILE_SPACING,
     gravity_overrides,
@@ -75,6 +79,11 @@ NARROW_NOTE = (" Narrow (--narrow): each query scan as a narrow solid-state sens
                f"the nearest return per {NARROW_STEP_DEG:g} deg of azimuth and elevation over "
                f"{NARROW_FIELD_DEG:g} x {NARROW_FIELD_DEG:g} deg, views with fewer than {NARROW_MIN_RETURNS} "
                "returns left out.")
+AT_REST_NOTE = (f" At rest (--at-rest): each narrow view also as {RESTING_FRAMES} frames of the sensor at rest, each "
+                "the nearest return per bin of a grid shifted by a random fraction of a bin (a non-repeating "
+                "pattern filling in), the newest the view itself; Regor fuses the ones the scans show were "
+                "taken at rest, at identity (core.at_rest, as the node does without odometry), KISS-Matcher is "
+                "given the same (input `narrow <heading> at rest`).")
 STRESS_NOTE = (" Stress (--stress): each map is enlarged with every other place's map (and trajectory), "
                f"{TILE_SPACING:.0f} m apart, so the target is several times the size it was and chance support "
                "grows; `thinned` is the query scan with every 4th point (a sparse sensor's density).")
@@ -134,9 +143,13 @@ def _run_map(job) -> list[dict]:
             source = query.cloud(which)
             if source is None:
                 continue
+            if isinstance(source, list):   # a resting sensor's frames: fused as the node fuses them
+                fused, _ = at_rest(source, config.features.voxel_size, config.features.normal_radius)
+                source = source[-1] if fused is None else fused
             same = query.sequence == name
             row = dict(base, query=f"{query.sequence}/{query.id}", input=which, query_kind=query.kind,
-                       set="same" if same else "cross", scans=len(source.scans) if which == "sequence" else 1,
+                       set="same" if same else "cross",
+                       scans=len(source.scans) if isinstance(source, ScanSequence) else 1,
                        pair=f"{place_of(query.sequence)} ({query.id} {which}) -> {place_of(name)} (map)", error="")
             if regor:
                 given = config
@@ -154,7 +167,7 @@ def _run_map(job) -> list[dict]:
                 if same:
                     row["error_sigmas"] = error_sigmas(T, query.truth, result.covariance)
             else:
-                points = source if which != "sequence" else source.fused().points
+                points = source.fused().points if isinstance(source, ScanSequence) else source
                 T, seconds, accepted = kiss_matcher_pose(points, cloud, config.features.voxel_size)
             success, rot, trans = _score(T, [query.truth]) if same else (False, np.nan, np.nan)
             row.update(success=success, accepted=accepted, rotation_error_deg=rot, translation_error_m=trans,
@@ -244,14 +257,18 @@ def map_report(rows: list[dict], header: str) -> str:
 
 def run_maps(folders: list[Path], methods: list[str], config: RegorConfig, out: Path, header: str,
              name_filter: str | None = None, stress: bool = False, narrow: bool = False,
-             imu_tilt: float | None = None) -> str:
+             imu_tilt: float | None = None, at_rest: bool = False) -> str:
     """The map of every sequence under ``folders`` (whose name contains one of the comma-separated
     ``name_filter``) with every method, against its own queries and every other place's (one_place);
     writes maps.md, .csv and .png. With ``stress``: each map enlarged with the other places'
     maps, its queries single, thinned and fused (stress.md, .csv and .png). With ``narrow``: the
     query scans seen by a narrow sensor (narrow_view; narrow.md, .csv and .png). With ``imu_tilt``
-    (degrees): every query given its up as an IMU would (imu_up), but to regor-noprior."""
+    (degrees): every query given its up as an IMU would (imu_up), but to regor-noprior. With
+    ``at_rest`` (and ``narrow``): each narrow view also as the frames of a sensor at rest
+    (resting_frames), fused as the node fuses them (core.at_rest)."""
     inputs, name = (STRESS_INPUTS, "stress") if stress else (NARROW_INPUTS, "narrow") if narrow else (INPUTS, "maps")
+    if at_rest:
+        inputs, name = NARROW_INPUTS + NARROW_AT_REST_INPUTS, "at_rest"
     sequences = [str(p) for p in sequence_folders(folders)]
     maps = [s for s in sequences if selected(Path(s).name, name_filter)]
     if not maps:

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import ScanHistory, SearchRegion, at_rest
-from ..core.scan_history import NO_ODOMETRY
 from .imu_up import ImuUp
 from .inputs import Cloud
 from .report import Report
@@ -145,12 +144,12 @@ class SourceContext:
             with self.shared.lock:
                 self._gathering = False
                 sequence, info = self.history.sequence(src.stamp, limits, source_viewpoint)
-                recent = self.history.recent(src.stamp, limits)
-            if sequence is None and info["alone"] == NO_ODOMETRY and settings.fuse_at_rest and len(recent) >= 2:
+                recent, no_odometry = self.history.recent(src.stamp, limits), not self.history.has_odometry
+            if sequence is None and no_odometry and settings.fuse_at_rest and len(recent) >= 2:
                 sequence, moved = at_rest(recent, config.features.voxel_size, config.features.normal_radius,
                                           source_viewpoint)
                 if sequence is None:
-                    info["reason"] = f"{NO_ODOMETRY}, and the scans show motion ({moved}): registered alone"
+                    info["reason"] = f"{info['alone']}, and the scans show motion ({moved}): registered alone"
                 else:
                     info = {"scans_fused": len(sequence.scans), "without_odometry": 0, "at_rest": True,
                             "more_to_fuse": 0}
