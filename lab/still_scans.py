@@ -40,7 +40,8 @@ def main() -> None:
     args = parser.parse_args()
     features = RegorConfig.preset("outdoor").features
     voxel, radius = features.voxel_size, features.normal_radius
-    print("| sequence | consecutive pairs (moving) | said still | their odometry steps, m | halves of a scan | said still |")
+    print("| sequence | consecutive pairs (moving) | said still | their odometry steps, m | halves of a scan "
+          "| said still |")
     print("|---|---|---|---|---|---|")
     for folder in sequence_folders(args.folders):
         _, _, queries = load_sequence(folder)

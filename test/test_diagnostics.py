@@ -28,6 +28,9 @@ def test_each_state_has_its_level_and_reason():
     assert preparing.level == DiagnosticStatus.WARN and "map" in preparing.message
     withheld = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary=SUMMARY)
     assert withheld.level == DiagnosticStatus.WARN and "12 feature matches" in withheld.message
+    gathering = status(counters={"source_clouds": 1, "target_clouds": 1},
+                       gathering="no odometry: gathering scans at rest before the first registration, 1 of 5")
+    assert gathering.level == DiagnosticStatus.WARN and gathering.message.endswith("1 of 5")
     published = status(counters={"source_clouds": 2, "target_clouds": 1}, last_summary=PUBLISHED)
     assert published.level == DiagnosticStatus.OK
     malformed = status(counters={"source_clouds": 3, "target_clouds": 1}, last_summary=SUMMARY,

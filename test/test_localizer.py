@@ -173,9 +173,11 @@ def test_without_odometry_the_first_registration_gathers_the_scans_at_rest_and_f
     localizer, recorder = started(accumulate_scans=3, rest_wait=60.0)
     try:
         localizer.store("target", "map", SECOND, TARGET)
+        said = []
         for k, frame in enumerate(_frames(SOURCE, 3)):
             localizer.store("source", "camera", SECOND + k * SECOND // 10, frame)
             time.sleep(0.2)   # the worker could take each: it waits for the rest
+            said.append(localizer.report.health.gathering)   # what /diagnostics says meanwhile
         fused = recorder.wait_for_outcomes(1)
         localizer.store("target", "map", 2 * SECOND, TARGET)
         localizer.store("source", "camera", 2 * SECOND, SOURCE + np.array([0.5, 0.0, 0.0]))
@@ -185,6 +187,9 @@ def test_without_odometry_the_first_registration_gathers_the_scans_at_rest_and_f
     assert fused.status["accumulation"] == {"scans_fused": 3, "without_odometry": 0, "at_rest": True,
                                             "more_to_fuse": 0, "waited_for_odometry_s": fused.status[
                                                 "accumulation"]["waited_for_odometry_s"]}
+    assert said[:2] == [f"no odometry: gathering scans at rest before the first registration, {k} of 3"
+                        for k in (1, 2)], said
+    assert fused.status["registrations_fused_at_rest"] == 1 and fused.source.stamp_ns == SECOND + 2 * SECOND // 10
     assert fused.result.accepted and rotation_error_deg(fused.result.transform, TRUTH) < 5
     assert translation_error(fused.result.transform, TRUTH) < 0.1
     alone = moved.status["accumulation"]

@@ -43,6 +43,7 @@ class Health:
     map_from_file: bool = False            # the target is a map file, not target_cloud
     ready_after_s: float | None = None     # from the process's start to ready to register (imports included)
     watchdog: Any = None                   # the watchdog's latest Check (ros/watchdog.py), None before one
+    gathering: str = ""                    # the first registration waits for scans at rest: how many so far
 
     def ready_line(self, kernels_s: float) -> str:
         """The log line of a node ready to register: how long after its start, and the parts."""
@@ -87,7 +88,7 @@ def diagnostic_status(health: Health, node_name: str) -> DiagnosticStatus:
     elif health.preparing_map:
         level, message = DiagnosticStatus.WARN, "map not prepared yet"
     elif summary is None:
-        level, message = DiagnosticStatus.WARN, "waiting for a registration"
+        level, message = DiagnosticStatus.WARN, health.gathering or "waiting for a registration"
     elif not summary.accepted:
         level, message = DiagnosticStatus.WARN, f"last pose withheld: {summary.reason}"
     values = {"lifecycle": health.lifecycle, **health.counters,

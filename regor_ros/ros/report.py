@@ -50,7 +50,7 @@ class Report:
         self.lock, self.logger = lock, logger
         self.stats = {"source_clouds": 0, "target_clouds": 0, "odometry_messages": 0, "registrations": 0,
                       "accepted_poses": 0, "dropped_stale": 0, "bad_inputs": 0, "map_preparations": 0,
-                      "registrations_fused": 0, "registrations_alone": 0}
+                      "registrations_fused": 0, "registrations_alone": 0, "registrations_fused_at_rest": 0}
         # why scans meant to be fused were registered alone: kind (core ALONE_REASONS) -> count
         self.alone_because: dict[str, int] = {}
         self.health = Health(counters=self.stats, alone_because=self.alone_because, map_from_file=map_from_file)
@@ -87,6 +87,7 @@ class Report:
         if accumulation is not None:
             alone = accumulation.get("alone")
             self.stats["registrations_alone" if alone else "registrations_fused"] += 1
+            self.stats["registrations_fused_at_rest"] += int(bool(accumulation.get("at_rest")))
             if alone:
                 self.alone_because[alone] = self.alone_because.get(alone, 0) + 1
         self.stats["accepted_poses"] += int(result.accepted)

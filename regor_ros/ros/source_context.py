@@ -77,8 +77,11 @@ class SourceContext:
         scans = settings.accumulation().scans
         if (not self._gathering or not settings.fuse_at_rest or scans < 2 or self.history.has_odometry
                 or self._first_scan is None or len(self.history.scans) >= scans):
+            self.report.health.gathering = ""
             return 0.0
         left = max(0.0, self._first_scan + settings.rest_wait - time.monotonic())
+        self.report.health.gathering = (f"no odometry: gathering scans at rest before the first registration, "
+                                        f"{len(self.history.scans)} of {scans}" if left > 0 else "")
         if left > 0 and not self._announced:
             self._announced = True
             self.report.logger.info(f"no odometry: gathering up to {scans} scans (accumulate_scans) for at most "
@@ -142,7 +145,7 @@ class SourceContext:
         sequence, info = None, None
         if limits.scans >= 2:
             with self.shared.lock:
-                self._gathering = False
+                self._gathering, self.report.health.gathering = False, ""
                 sequence, info = self.history.sequence(src.stamp, limits, source_viewpoint)
                 recent, no_odometry = self.history.recent(src.stamp, limits), not self.history.has_odometry
             if sequence is None and no_odometry and settings.fuse_at_rest and len(recent) >= 2:
