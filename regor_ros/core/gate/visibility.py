@@ -153,7 +153,7 @@ def free_space_figures(T: np.ndarray, source: PreparedCloud, target: PreparedClo
                        uncertainty: tuple[float, float] | None = None) -> Figures:
     """The pose's visibility figures alone (every other figure not measured): what the judge's
     free-space checks read of a pose nobody measured further (FS-TCD's hypotheses, the search's
-    other places, a rival: read without the pose's uncertainty)."""
+    other places: read without an uncertainty; a contending rival: with its own)."""
     return Figures(num_inliers=NOT_MEASURED, fitness=NOT_MEASURED, surface_agreement=NOT_MEASURED,
                    log10_false_alarms=NOT_MEASURED, independent_agreeing=NOT_MEASURED, feature_inliers=NOT_MEASURED,
                    **visibility_figures(T, source, target, acceptance, matched_index, uncertainty).as_figures())
