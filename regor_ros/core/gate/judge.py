@@ -228,6 +228,7 @@ CHECKS = (
                               "ambiguous scene (acceptance.reverse_check)")),
 )
 FREE_SPACE_CHECKS = tuple(check for check in CHECKS if check.name.startswith("max_free_space"))
+BEFORE_RIVALS = CHECKS[:[check.name for check in CHECKS].index("min_feature_inliers")]  # none reads a rival
 PASSED = len(CHECKS)
 
 
@@ -254,11 +255,11 @@ class Rules:
     acceptance: AcceptanceConfig
 
     def rivals_may_matter(self, figures: Figures) -> bool:
-        """Whether the rivals can change the verdict: the pose passes every check they cannot change
-        (all but the ambiguity and the feature count that a pose singled out among them is spared:
-        _needed_features). Against chance, the surfaces must already have been tried."""
-        spared = dataclasses.replace(self.acceptance, min_feature_inliers=0)
-        return bool(passes(figures, spared))
+        """Whether the rivals can change the verdict or the check it names: the pose passes every
+        check before the first they bear on (the feature count, which a pose singled out among them
+        is spared: _needed_features; then the ambiguity). Against chance, the surfaces must already
+        have been tried."""
+        return bool(passes(figures, self.acceptance, BEFORE_RIVALS))
 
     def chance_explains(self, log10_false_alarms: float) -> bool:
         """Whether chance gives this support more often than acceptance.max_false_alarms allows."""

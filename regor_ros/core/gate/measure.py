@@ -2,9 +2,11 @@
 see them. Two tests cost refinements, and each is measured only where it can change the verdict:
 the surfaces' test against chance (a dozen refinements) for a pose whose feature matches fail
 theirs and that passes every other check; then the rivals (a refinement each, a full one for a
-rival that contends) for a pose that passes every check they cannot change, chance included. A
-pose that fails a check neither can change is withheld without them. Which is which, the judge's rules say
-(judge.Rules): nothing here compares a figure with a threshold."""
+rival that contends) for a pose that passes every check before the first they bear on, chance
+included, so that the verdict and the check it names are what they would be with every figure
+measured. A pose that fails such a check (a query from outside the map, mostly) is withheld
+without them. Which is which, the judge's rules say (judge.Rules): nothing here compares a figure
+with a threshold."""
 from __future__ import annotations
 
 import dataclasses
