@@ -15,23 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from regor_ros.bench.datasets import load_sequence, sequence_folders
+from regor_ros.bench.datasets import consecutive_scans, load_sequence, sequence_folders
 from regor_ros.core import RegorConfig, was_still
-
-
-def consecutive(queries) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """(older scan, newer scan, the odometry's translation between them) of every consecutive pair
-    the queries' histories hold, each once."""
-    pairs = {}
-    for query in queries:
-        history = query.history
-        if history is None:
-            continue
-        for a, b, pose_a, pose_b in zip(history.scans[:-1], history.scans[1:], history.poses[:-1],
-                                        history.poses[1:], strict=True):
-            step = float(np.linalg.norm(pose_b[:3, 3] - pose_a[:3, 3]))
-            pairs[(pose_a.tobytes(), pose_b.tobytes())] = (a, b, step)
-    return list(pairs.values())
 
 
 def main() -> None:
@@ -45,7 +30,7 @@ def main() -> None:
     print("|---|---|---|---|---|---|")
     for folder in sequence_folders(args.folders):
         _, _, queries = load_sequence(folder)
-        moving = consecutive(queries)
+        moving = consecutive_scans(queries)
         moving_still = sum(was_still(a, b, voxel, radius).still for a, b, _ in moving)
         steps = [step for *_, step in moving]
         halves = 0

@@ -89,6 +89,13 @@ def length_residual(source, target):
     return np.abs(distances(source) - distances(target))
 
 
+def samplings(points, count, seed=0):
+    """``count`` disjoint random samplings of ``points``: the frames a resting sensor whose pattern
+    does not repeat returns, frame after frame."""
+    order = np.random.default_rng(seed).permutation(len(points))
+    return [points[part] for part in np.array_split(order, count)]
+
+
 def random_motion(seed, max_translation=2.0):
     return random_rigid_motion(seed, max_translation)
 

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import REPO, samplings
 
 from regor_ros.core import RegistrationError, RegorConfig, SearchRegion, rotation_error_deg, translation_error
 from regor_ros.ros.localizer import Localizer
@@ -159,13 +159,6 @@ def test_an_imu_without_the_maps_up_is_said_to_leave_the_prior_off():
     assert unused_settings(RegorConfig.preset("outdoor"), make_settings({})) == []
 
 
-def _frames(points: np.ndarray, count: int) -> list[np.ndarray]:
-    """``count`` disjoint random samplings of ``points``: a resting sensor's frames, its pattern
-    not repeating."""
-    order = np.random.default_rng(0).permutation(len(points))
-    return [points[part] for part in np.array_split(order, count)]
-
-
 def test_without_odometry_the_first_registration_gathers_the_scans_at_rest_and_fuses_them():
     """A robot switched on at rest, no odometry: the worker waits for accumulate_scans scans (up to
     rest_wait), sees from the scans that the sensor did not move, and registers them fused. A scan
@@ -174,7 +167,7 @@ def test_without_odometry_the_first_registration_gathers_the_scans_at_rest_and_f
     try:
         localizer.store("target", "map", SECOND, TARGET)
         said = []
-        for k, frame in enumerate(_frames(SOURCE, 3)):
+        for k, frame in enumerate(samplings(SOURCE, 3)):
             localizer.store("source", "camera", SECOND + k * SECOND // 10, frame)
             time.sleep(0.2)   # the worker could take each: it waits for the rest
             said.append(localizer.report.health.gathering)   # what /diagnostics says meanwhile

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
-from conftest import DATA, load_map_query, require_shared_data
+from conftest import DATA, load_map_query, require_shared_data, samplings
 from ros_helpers import TIMEOUT, NodeProcess
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
@@ -266,8 +266,7 @@ def test_a_robot_switched_on_at_rest_without_odometry_starts_from_its_scans_fuse
     from regor_ros.ros.messages import stamp_seconds
     demo = REPO / "demo"
     scan, truth = np.load(demo / "src.npy"), np.loadtxt(demo / "gt.txt")
-    order = np.random.default_rng(0).permutation(len(scan))
-    frames = [scan[part] for part in np.array_split(order, 3)]   # a resting sensor's frames
+    frames = samplings(scan, 3)   # a resting sensor's frames
     node = NodeProcess(install, "--params-file",
                        str(install / "regor_ros" / "share" / "regor_ros" / "config" / "indoor.yaml"),
                        "-p", "mode:=map", "-p", f"map_file:={demo / 'tgt.npy'}", "-p", "map_cache:=false",

@@ -5,7 +5,7 @@ identity and stops at the first that moved. On the bundled real scan; on the sha
 ETH sequences, consecutive scans of a robot in motion are never said still."""
 import numpy as np
 import pytest
-from conftest import DATA, REPO, require_shared_data
+from conftest import DATA, REPO, require_shared_data, samplings
 from scipy.spatial.transform import Rotation
 
 from regor_ros.core import RegorConfig, ScanSequence, at_rest, to_matrix, transform_points, was_still
@@ -15,15 +15,8 @@ INDOOR = RegorConfig.preset("indoor").features
 VOXEL, RADIUS = INDOOR.voxel_size, INDOOR.normal_radius
 
 
-def frames(points: np.ndarray, count: int, seed: int = 0) -> list[np.ndarray]:
-    """``count`` disjoint random samplings of ``points``: what a resting sensor whose pattern does
-    not repeat returns frame after frame."""
-    order = np.random.default_rng(seed).permutation(len(points))
-    return [points[part] for part in np.array_split(order, count)]
-
-
 def test_two_samplings_of_one_scan_are_still():
-    older, newer = frames(SCAN, 2)
+    older, newer = samplings(SCAN, 2)
     verdict = was_still(older, newer, VOXEL, RADIUS)
     assert verdict.still and verdict.reason == "", verdict
     assert verdict.moved_m < 0.5 * VOXEL and verdict.overlap > 0.8 and verdict.constrained
@@ -31,7 +24,7 @@ def test_two_samplings_of_one_scan_are_still():
 
 @pytest.mark.parametrize("motion", ["a voxel's shift", "a degree's turn"])
 def test_the_same_scan_moved_is_not_still(motion):
-    older, newer = frames(SCAN, 2)
+    older, newer = samplings(SCAN, 2)
     T = (to_matrix(np.eye(3), [VOXEL, 0.0, 0.0]) if motion == "a voxel's shift"
          else to_matrix(Rotation.from_euler("y", 1.0, degrees=True).as_matrix(), np.zeros(3)))
     verdict = was_still(older, transform_points(T, newer), VOXEL, RADIUS)
@@ -46,8 +39,8 @@ def test_a_plane_cannot_be_told_from_sliding_along_it():
 
 
 def test_at_rest_fuses_the_run_of_still_scans_and_stops_at_one_that_moved():
-    moved_away = transform_points(to_matrix(np.eye(3), [0.5, 0.0, 0.0]), frames(SCAN, 4, seed=2)[0])
-    scans = [moved_away, *frames(SCAN, 3)]            # oldest first: the sensor came to rest after it
+    moved_away = transform_points(to_matrix(np.eye(3), [0.5, 0.0, 0.0]), samplings(SCAN, 4, seed=2)[0])
+    scans = [moved_away, *samplings(SCAN, 3)]            # oldest first: the sensor came to rest after it
     sequence, why = at_rest(scans, VOXEL, RADIUS)
     assert isinstance(sequence, ScanSequence) and len(sequence.scans) == 3
     assert all(np.array_equal(pose, np.eye(4)) for pose in sequence.poses)
@@ -61,20 +54,12 @@ def test_consecutive_scans_of_a_robot_in_motion_are_never_said_still():
     a park's scanner, each step a robot in motion, some short but turned). Fused at identity, any
     of them would smear the source."""
     require_shared_data("the moving sequences")
-    from regor_ros.bench.datasets import load_sequence
+    from regor_ros.bench.datasets import consecutive_scans, load_sequence
     features = RegorConfig.preset("outdoor").features
     said_still = []
     for folder in ("maps/fastlio_avia_hku2", "maps/scaloam_mulran_kaist03", "revisit/avia_hku2_loop",
                    "xseason/eth_gazebo_summer_winter"):
-        _, _, queries = load_sequence(DATA / folder)
-        pairs = {}
-        for query in queries:
-            if query.history is not None:
-                history = query.history
-                for a, b, pose_a, pose_b in zip(history.scans[:-1], history.scans[1:], history.poses[:-1],
-                                                history.poses[1:], strict=True):
-                    pairs[(pose_a.tobytes(), pose_b.tobytes())] = (a, b)
-        for a, b in pairs.values():
+        for a, b, _ in consecutive_scans(load_sequence(DATA / folder)[2]):
             verdict = was_still(a, b, features.voxel_size, features.normal_radius)
             if verdict.still:
                 said_still.append((folder, verdict))

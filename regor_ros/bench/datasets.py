@@ -161,6 +161,20 @@ def narrow_view(scan: np.ndarray, heading_deg: float, shift: tuple[float, float]
     return scan[inside[order[first]]]
 
 
+def consecutive_scans(queries: list[Query]) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(older scan, newer scan, the odometry's translation between them) of every pair of
+    consecutive scans the queries' histories hold, each pair once (the histories overlap)."""
+    pairs = {}
+    for query in queries:
+        history = query.history
+        if history is None:
+            continue
+        for a, b, pose_a, pose_b in zip(history.scans[:-1], history.scans[1:], history.poses[:-1],
+                                        history.poses[1:], strict=True):
+            pairs[(pose_a.tobytes(), pose_b.tobytes())] = (a, b, float(np.linalg.norm(pose_b[:3, 3] - pose_a[:3, 3])))
+    return list(pairs.values())
+
+
 def resting_frames(scan: np.ndarray, heading_deg: float, name: str) -> list[np.ndarray]:
     """The frames a narrow sensor at rest facing ``heading_deg`` returns of ``scan``: RESTING_FRAMES
     narrow views, the first on the grid, each later one's grid shifted by a random fraction of a bin

@@ -110,11 +110,14 @@ class ScanHistory:
         near = [j for j in (i - 1, i) if 0 <= j < len(stamps) and abs(stamps[j] - stamp) <= tolerance]
         return self._odometry[min(near, key=lambda j: abs(stamps[j] - stamp))] if near else None
 
+    def _window(self, newest: float, max_age: float) -> list[tuple[float, np.ndarray]]:
+        """The (stamp, points) kept up to ``newest`` and at most ``max_age`` older, oldest first."""
+        return [(s, p) for s, p in self.scans if newest - max_age <= s <= newest]
+
     def recent(self, newest: float, limits: AccumulationLimits) -> list[np.ndarray]:
         """The scans up to the one stamped ``newest``, oldest first: at most ``limits.scans``, none
         older than ``limits.max_age`` before it (what a sensor at rest may fuse: stillness.at_rest)."""
-        scans = [p for s, p in self.scans if newest - limits.max_age <= s <= newest]
-        return scans[-limits.scans:]
+        return [p for _, p in self._window(newest, limits.max_age)][-limits.scans:]
 
     def sequence(self, newest: float, limits: AccumulationLimits,
                  viewpoint=ORIGIN) -> tuple[ScanSequence | None, dict]:
@@ -123,7 +126,7 @@ class ScanHistory:
         arrive with odometry, up to ``limits.scans``). None when fewer than two scans can be
         fused: register the newest alone (``info["alone"]`` says why). ``viewpoint``: the sensor
         in each scan's frame."""
-        candidates = [(s, p) for s, p in self.scans if newest - limits.max_age <= s <= newest]
+        candidates = self._window(newest, limits.max_age)
         if not candidates or candidates[-1][0] != newest:
             return None, {"scans_fused": 1, "without_odometry": 0, "more_to_fuse": 0, "alone": NOTHING_TO_FUSE,
                           "reason": "the scan is not in the history"}

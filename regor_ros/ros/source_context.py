@@ -147,8 +147,9 @@ class SourceContext:
             with self.shared.lock:
                 self._gathering, self.report.health.gathering = False, ""
                 sequence, info = self.history.sequence(src.stamp, limits, source_viewpoint)
-                recent, no_odometry = self.history.recent(src.stamp, limits), not self.history.has_odometry
-            if sequence is None and no_odometry and settings.fuse_at_rest and len(recent) >= 2:
+                at_rest_may_fuse = sequence is None and settings.fuse_at_rest and not self.history.has_odometry
+                recent = self.history.recent(src.stamp, limits) if at_rest_may_fuse else []
+            if len(recent) >= 2:
                 sequence, moved = at_rest(recent, config.features.voxel_size, config.features.normal_radius,
                                           source_viewpoint)
                 if sequence is None:
